@@ -1,0 +1,21 @@
+//! The commands behind the binary. Each returns a typed result that `main.rs` prints.
+
+pub mod bench;
+pub mod render;
+
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    #[error(transparent)]
+    Render(#[from] crate::render::RenderError),
+    #[error(transparent)]
+    Io(#[from] crate::io::IoError),
+    #[error(transparent)]
+    Trajectory(#[from] crate::trajectory::TrajectoryError),
+    #[error("{path}: cannot create the output folder: {source}")]
+    OutDir {
+        path: String,
+        source: std::io::Error,
+    },
+}

@@ -1,0 +1,175 @@
+//! `optistim render SCENE.toml --out DIR`: one frame to `power.fits` (W), `signal.fits`
+//! (e-/s), `depth.fits` (m, NaN where empty), `image.png` (DN), and a JSON summary.
+
+use super::AppError;
+use crate::config::Config;
+use crate::io::fits::{self, Bitpix, Card, Value};
+use crate::render::{FrameStats, Renderer};
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+#[derive(Debug, Serialize)]
+pub struct RenderSummary {
+    pub scene: String,
+    /// Total collected power in `power_band_nm` (or bolometric) [W].
+    pub total_power_w: f64,
+    /// Total signal [e-/s].
+    pub total_signal_e_per_s: f64,
+    pub points_sampled: usize,
+    pub points_kept: usize,
+    pub phase_deg: f64,
+    pub covered_px: f64,
+    pub saturated_px: usize,
+    /// Time per stage [ms]: the renderer's steps, then the detector and the file writes.
+    pub timings_ms: serde_json::Value,
+}
+
+/// Renders the scene of `config` and writes the outputs into `out`.
+pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummary, AppError> {
+    std::fs::create_dir_all(out).map_err(|source| AppError::OutDir {
+        path: out.display().to_string(),
+        source,
+    })?;
+    let mut settings = config.settings.clone();
+    settings.depth = true;
+    let mut renderer = Renderer::new(settings.threads)?;
+    let frame = renderer.render(&config.scene, &config.pose, &settings)?;
+    let det = &config.scene.camera.detector;
+
+    let t0 = Instant::now();
+    let radiance = config.scene.sun.radiance_integral(config.power_band_m);
+    let k_signal = det.signal_factor(&config.scene.sun);
+    let power: Vec<f64> = frame.pl.iter().map(|x| x * radiance).collect();
+    let signal = det.signal(&frame.pl, k_signal);
+    let mut dn = Vec::new();
+    det.expose(&signal, config.pose.frame_id, &mut dn);
+    let detector_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+    let t0 = Instant::now();
+    let cards = header(config, &frame.stats, radiance, k_signal);
+    let with = |unit: &str, what: &str| {
+        let mut c = vec![Card::new("BUNIT", Value::Str(unit.into()), what)];
+        c.extend(cards.iter().cloned());
+        c
+    };
+    let (w, h) = (frame.width, frame.height);
+    fits::write(
+        &out.join("power.fits"),
+        w,
+        h,
+        &power,
+        Bitpix::F64,
+        &with("W", "collected power per pixel"),
+    )?;
+    fits::write(
+        &out.join("signal.fits"),
+        w,
+        h,
+        &signal,
+        Bitpix::F64,
+        &with("electron/s", "signal per pixel"),
+    )?;
+    let depth = frame.depth_m.as_deref().unwrap_or(&[]);
+    fits::write(
+        &out.join("depth.fits"),
+        w,
+        h,
+        depth,
+        Bitpix::F32,
+        &with("m", "range to the surface, NaN = empty"),
+    )?;
+    crate::io::write_png_gray(&out.join("image.png"), w, h, &dn, det.bit_depth)?;
+    let write_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+    let mut timings = serde_json::to_value(frame.stats.timings_ms).unwrap_or_default();
+    if let Some(o) = timings.as_object_mut() {
+        o.insert("detector".into(), detector_ms.into());
+        o.insert("write".into(), write_ms.into());
+    }
+    let max_dn = det.max_dn() as u16;
+    Ok(RenderSummary {
+        scene: scene_name.to_string(),
+        total_power_w: power.iter().sum(),
+        total_signal_e_per_s: signal.iter().sum(),
+        points_sampled: frame.stats.points_sampled,
+        points_kept: frame.stats.points_kept,
+        phase_deg: frame.stats.phase_deg,
+        covered_px: frame.stats.covered_px,
+        saturated_px: dn.iter().filter(|&&x| x >= max_dn).count(),
+        timings_ms: timings,
+    })
+}
+
+fn header(config: &Config, stats: &FrameStats, radiance: f64, k_signal: f64) -> Vec<Card> {
+    let s = &config.scene;
+    let i = &s.camera.intrinsics;
+    let p = &config.pose;
+    let q = crate::geometry::wxyz(p.body_from_camera);
+    let f = |k: &str, v: f64, c: &str| Card::new(k, Value::Float(v), c);
+    vec![
+        Card::new(
+            "CREATOR",
+            Value::Str(format!("optistim {}", env!("CARGO_PKG_VERSION"))),
+            "software",
+        ),
+        Card::new("BODY", Value::Str(s.body.name.clone()), "target body"),
+        f(
+            "RADIUS",
+            s.body.shape.bounding_radius_m(),
+            "body radius [m]",
+        ),
+        Card::new(
+            "BRDF",
+            Value::Str(s.body.brdf.name().into()),
+            "reflectance model",
+        ),
+        f(
+            "BRDFSCAL",
+            s.body.brdf.scale(),
+            "BRDF scale parameter (rho or w)",
+        ),
+        f(
+            "GEOALB",
+            s.body.brdf.geometric_albedo(),
+            "geometric albedo p_G",
+        ),
+        f("PHASE", stats.phase_deg, "phase angle [deg]"),
+        f(
+            "CAMX",
+            p.camera_position_m.x,
+            "camera position, body frame [m]",
+        ),
+        f(
+            "CAMY",
+            p.camera_position_m.y,
+            "camera position, body frame [m]",
+        ),
+        f(
+            "CAMZ",
+            p.camera_position_m.z,
+            "camera position, body frame [m]",
+        ),
+        f("SUNX", p.sun_position_m.x, "Sun position, body frame [m]"),
+        f("SUNY", p.sun_position_m.y, "Sun position, body frame [m]"),
+        f("SUNZ", p.sun_position_m.z, "Sun position, body frame [m]"),
+        f("QW", q[0], "camera->body quaternion, scalar first"),
+        f("QX", q[1], "camera->body quaternion"),
+        f("QY", q[2], "camera->body quaternion"),
+        f("QZ", q[3], "camera->body quaternion"),
+        f("FOCAL", i.focal_length_m, "focal length [m]"),
+        f("FNUMBER", i.f_number, "f-number"),
+        f("PIXSIZEU", i.pixel_pitch_m[0], "pixel pitch u [m]"),
+        f("PIXSIZEV", i.pixel_pitch_m[1], "pixel pitch v [m]"),
+        f("EXPTIME", s.camera.detector.exposure_s, "exposure [s]"),
+        f("PL2W", radiance, "W per sr m^2 of (P/L): int L_e dlambda"),
+        f("PL2SIG", k_signal, "e-/s per sr m^2 of (P/L) (Eq. 45)"),
+        Card::new(
+            "NPOINTS",
+            Value::Int(stats.points_kept as i64),
+            "quadrangles kept",
+        ),
+        f("ASUN", s.sun.area_m2(), "Sun frontal area [m^2]"),
+        f("ACAM", i.aperture_area_m2(), "camera pupil area [m^2]"),
+    ]
+}

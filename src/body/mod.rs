@@ -1,0 +1,64 @@
+//! The body being rendered: its shape and its reflectance.
+//!
+//! Shapes sit behind [`Shape`] so that later shapes (ellipsoids, DEM-displaced spheres,
+//! triangle meshes) stand beside the sphere without touching the renderer's steps: the
+//! renderer asks a shape for its bounding radius, the surface point and normal in a direction
+//! from the centre, and the first intersection of a ray.
+
+pub mod sphere;
+
+use crate::brdf::Brdf;
+use glam::DVec3;
+pub use sphere::Sphere;
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Shape {
+    Sphere(Sphere),
+}
+
+impl Shape {
+    /// Radius of a sphere centred on the body that contains the whole surface [m].
+    pub fn bounding_radius_m(&self) -> f64 {
+        match self {
+            Shape::Sphere(s) => s.radius_m,
+        }
+    }
+
+    /// Radius of a sphere centred on the body that the surface contains [m].
+    pub fn inner_radius_m(&self) -> f64 {
+        match self {
+            Shape::Sphere(s) => s.radius_m,
+        }
+    }
+
+    /// Surface point [m] and outward unit normal in the direction `dir` (unit, from the centre).
+    #[inline(always)]
+    pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
+        match self {
+            Shape::Sphere(s) => (dir * s.radius_m, dir),
+        }
+    }
+
+    /// Distance to the first intersection of the ray `origin + t dir` (`dir` unit) with `t > 0`.
+    #[inline]
+    pub fn intersect(&self, origin: DVec3, dir: DVec3) -> Option<f64> {
+        match self {
+            Shape::Sphere(s) => crate::geometry::ray_sphere(origin, dir, s.radius_m),
+        }
+    }
+
+    /// Whether a point [m] (body frame) lies inside the body.
+    pub fn contains(&self, p: DVec3) -> bool {
+        match self {
+            Shape::Sphere(s) => p.length() < s.radius_m,
+        }
+    }
+}
+
+/// A body: name, shape and reflectance model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Body {
+    pub name: String,
+    pub shape: Shape,
+    pub brdf: Brdf,
+}

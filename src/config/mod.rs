@@ -1,0 +1,644 @@
+//! Scene configuration: TOML files go from *as written* ([`raw`]) to *validated*
+//! ([`Config`]: a [`Scene`], a [`Pose`] and render [`Settings`]). Every error names the file,
+//! the key, the value and what is allowed. The full format is documented in `docs/scene.md`.
+
+pub mod raw;
+
+use crate::body::{Body, Shape, Sphere};
+use crate::brdf::{AlbedoType, Area, Brdf, Lambert, LommelSeeliger, OrenNayar, Phong, Specular};
+use crate::camera::{Brown, Intrinsics};
+use crate::detector::Detector;
+use crate::detector::noise::{DarkCurrent, Noise, Prnu, Readout, Shot};
+use crate::geometry::{body_from_camera_wxyz, look_at};
+use crate::radiometry::{AU, SpectralTable, SunSpectrum};
+use crate::render::gridding::Gridding;
+use crate::render::reconstruction::Reconstruction;
+use crate::render::{FovShape, Integration, PointBudget, Sampling, Settings, Split};
+use crate::scene::{Camera, Pose, Scene};
+use glam::DVec3;
+use raw::*;
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        file: String,
+        source: std::io::Error,
+    },
+    #[error("{file}: {message}")]
+    Parse { file: String, message: String },
+    #[error("{file}: {key} = {value}: {allowed}")]
+    Invalid {
+        file: String,
+        key: String,
+        value: String,
+        allowed: String,
+    },
+}
+
+/// A validated scene file.
+#[derive(Clone, Debug)]
+pub struct Config {
+    pub scene: Scene,
+    pub pose: Pose,
+    pub settings: Settings,
+    /// Band of `power.fits` [m]; `None` for the whole spectrum.
+    pub power_band_m: Option<(f64, f64)>,
+}
+
+/// Reads and validates a scene file.
+pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        file: file.clone(),
+        source,
+    })?;
+    parse(&text, &file)
+}
+
+/// Parses and validates scene text; `file` names it in errors.
+pub fn parse(text: &str, file: &str) -> Result<Config, ConfigError> {
+    let raw: RawScene = toml::from_str(text).map_err(|e| ConfigError::Parse {
+        file: file.to_string(),
+        message: e.to_string().trim_end().to_string(),
+    })?;
+    Validator { file }.scene(raw)
+}
+
+struct Validator<'a> {
+    file: &'a str,
+}
+
+type R<T> = Result<T, ConfigError>;
+
+impl Validator<'_> {
+    fn err<T>(&self, key: &str, value: impl std::fmt::Debug, allowed: &str) -> R<T> {
+        Err(ConfigError::Invalid {
+            file: self.file.to_string(),
+            key: key.to_string(),
+            value: format!("{value:?}"),
+            allowed: allowed.to_string(),
+        })
+    }
+    fn positive(&self, key: &str, x: f64) -> R<f64> {
+        if x.is_finite() && x > 0.0 {
+            Ok(x)
+        } else {
+            self.err(key, x, "a finite number > 0")
+        }
+    }
+    fn non_negative(&self, key: &str, x: f64) -> R<f64> {
+        if x.is_finite() && x >= 0.0 {
+            Ok(x)
+        } else {
+            self.err(key, x, "a finite number >= 0")
+        }
+    }
+    fn in_range(&self, key: &str, x: f64, lo: f64, hi: f64) -> R<f64> {
+        if x.is_finite() && x >= lo && x <= hi {
+            Ok(x)
+        } else {
+            self.err(key, x, &format!("a number in [{lo}, {hi}]"))
+        }
+    }
+    fn finite3(&self, key: &str, v: [f64; 3]) -> R<DVec3> {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(DVec3::from_array(v))
+        } else {
+            self.err(key, v, "three finite numbers [m]")
+        }
+    }
+    fn choice<'s>(&self, key: &str, value: &'s str, allowed: &[&str]) -> R<&'s str> {
+        if allowed.contains(&value) {
+            Ok(value)
+        } else {
+            self.err(key, value, &format!("one of {}", allowed.join(", ")))
+        }
+    }
+    fn need<T: Copy>(&self, key: &str, v: Option<T>, why: &str) -> R<T> {
+        match v {
+            Some(x) => Ok(x),
+            None => Err(ConfigError::Invalid {
+                file: self.file.to_string(),
+                key: key.to_string(),
+                value: "(missing)".into(),
+                allowed: why.to_string(),
+            }),
+        }
+    }
+    fn table(
+        &self,
+        key: &str,
+        wl_nm: &[f64],
+        value: &[f64],
+        range: (f64, f64),
+    ) -> R<SpectralTable> {
+        let wl: Vec<f64> = wl_nm.iter().map(|x| x * 1e-9).collect();
+        SpectralTable::new(wl, value.to_vec(), range).map_err(|e| ConfigError::Invalid {
+            file: self.file.to_string(),
+            key: key.to_string(),
+            value: format!("{} points", value.len()),
+            allowed: e.to_string(),
+        })
+    }
+
+    fn scene(&self, raw: RawScene) -> R<Config> {
+        let sun = self.sun(&raw.sun)?;
+        let sun_position_m = self.finite3("sun.position_m", raw.sun.position_m)?;
+        let body = self.body(&raw.body)?;
+        if sun_position_m.length() <= body.shape.bounding_radius_m() {
+            return self.err(
+                "sun.position_m",
+                raw.sun.position_m,
+                "a point outside the body",
+            );
+        }
+        let (camera, power_band_m) = self.camera(&raw.camera)?;
+        let pose = self.pose(&raw.pose, sun_position_m, &body)?;
+        let settings = self.render(&raw.render, &body.brdf)?;
+        Ok(Config {
+            scene: Scene { sun, body, camera },
+            pose,
+            settings,
+            power_band_m,
+        })
+    }
+
+    fn sun(&self, s: &RawSun) -> R<SunSpectrum> {
+        match self.choice("sun.spectrum", &s.spectrum, &["blackbody", "tabulated"])? {
+            "blackbody" => {
+                let temperature_k =
+                    self.positive("sun.temperature_k", s.temperature_k.unwrap_or(5782.0))?;
+                let radius_m = self.positive("sun.radius_m", s.radius_m.unwrap_or(6.957e8))?;
+                let mut sun = SunSpectrum::BlackBody {
+                    temperature_k,
+                    radius_m,
+                    scale: 1.0,
+                };
+                if let Some(f) = s.irradiance_at_1au_w_m2 {
+                    let f = self.positive("sun.irradiance_at_1au_w_m2", f)?;
+                    sun = SunSpectrum::BlackBody {
+                        temperature_k,
+                        radius_m,
+                        scale: f / sun.irradiance_at(AU),
+                    };
+                }
+                Ok(sun)
+            }
+            _ => {
+                let wl = self.need(
+                    "sun.wavelength_nm",
+                    s.wavelength_nm.as_ref(),
+                    "required for spectrum = \"tabulated\"",
+                )?;
+                let irr = self.need(
+                    "sun.irradiance_w_m2_nm",
+                    s.irradiance_w_m2_nm.as_ref(),
+                    "required for spectrum = \"tabulated\"",
+                )?;
+                // W m^-2 nm^-1 -> W m^-2 m^-1.
+                let per_m: Vec<f64> = irr.iter().map(|x| x * 1e9).collect();
+                let table =
+                    self.table("sun.irradiance_w_m2_nm", wl, &per_m, (0.0, f64::INFINITY))?;
+                let distance_m = self.positive("sun.distance_m", s.distance_m.unwrap_or(AU))?;
+                let radius_m = self.positive("sun.radius_m", s.radius_m.unwrap_or(6.957e8))?;
+                Ok(SunSpectrum::Tabulated {
+                    irradiance: table,
+                    distance_m,
+                    radius_m,
+                })
+            }
+        }
+    }
+
+    fn body(&self, b: &RawBody) -> R<Body> {
+        self.choice("body.shape", &b.shape, &["sphere"])?;
+        let radius_m = self.positive("body.radius_m", b.radius_m)?;
+        let unit = |key: &str, v: Option<f64>, default: f64| {
+            self.in_range(key, v.unwrap_or(default), 0.0, 1.0)
+        };
+        let brdf = match self.choice(
+            "body.brdf",
+            &b.brdf,
+            &[
+                "lambert",
+                "area",
+                "lommel_seeliger",
+                "oren_nayar",
+                "specular",
+                "phong",
+            ],
+        )? {
+            "lambert" => Brdf::Lambert(Lambert { rho: 1.0 }),
+            "area" => Brdf::Area(Area { rho: 1.0 }),
+            "lommel_seeliger" => Brdf::LommelSeeliger(LommelSeeliger { w: 1.0 }),
+            "oren_nayar" => Brdf::OrenNayar(OrenNayar {
+                rho: 1.0,
+                sigma_rad: self.in_range(
+                    "body.roughness_rad",
+                    self.need(
+                        "body.roughness_rad",
+                        b.roughness_rad,
+                        "required for brdf = \"oren_nayar\" [rad]",
+                    )?,
+                    0.0,
+                    1.5,
+                )?,
+            }),
+            "specular" => Brdf::Specular(Specular {
+                rho: 1.0,
+                shininess: self.in_range(
+                    "body.shininess",
+                    b.shininess.unwrap_or(20.0),
+                    0.0,
+                    1e4,
+                )?,
+            }),
+            _ => {
+                let kd = unit("body.diffuse_weight", b.diffuse_weight, 0.5)?;
+                let ks = unit("body.specular_weight", b.specular_weight, 0.5)?;
+                if kd + ks > 1.0 {
+                    return self.err(
+                        "body.specular_weight",
+                        ks,
+                        "diffuse_weight + specular_weight <= 1",
+                    );
+                }
+                Brdf::Phong(Phong {
+                    rho: 1.0,
+                    diffuse_weight: kd,
+                    specular_weight: ks,
+                    shininess: self.in_range(
+                        "body.shininess",
+                        b.shininess.unwrap_or(20.0),
+                        0.0,
+                        1e4,
+                    )?,
+                })
+            }
+        };
+        let kind = match self.choice(
+            "body.albedo_type",
+            &b.albedo_type,
+            &["normal", "geometric", "bond"],
+        )? {
+            "normal" => AlbedoType::Normal,
+            "geometric" => AlbedoType::Geometric,
+            _ => AlbedoType::Bond,
+        };
+        let albedo = self.in_range("body.albedo", b.albedo, 0.0, 1.0)?;
+        let brdf = brdf.with_albedo(albedo, kind);
+        if !brdf.scale().is_finite() {
+            return self.err("body.albedo", albedo, "an albedo this BRDF can reach");
+        }
+        Ok(Body {
+            name: b.name.clone(),
+            shape: Shape::Sphere(Sphere { radius_m }),
+            brdf,
+        })
+    }
+
+    fn camera(&self, c: &RawCamera) -> R<(Camera, Option<(f64, f64)>)> {
+        let [w, h] = c.resolution_px;
+        if !(1..=32768).contains(&w) || !(1..=32768).contains(&h) {
+            return self.err(
+                "camera.resolution_px",
+                c.resolution_px,
+                "two integers in [1, 32768]",
+            );
+        }
+        let pitch = match c.pixel_pitch_m {
+            OneOrTwo::One(p) => [p, p],
+            OneOrTwo::Two(p) => p,
+        };
+        for p in pitch {
+            self.in_range("camera.pixel_pitch_m", p, 1e-8, 1e-2)?;
+        }
+        let focal_length_m =
+            self.in_range("camera.focal_length_m", c.focal_length_m, 1e-5, 100.0)?;
+        let f_number = self.in_range("camera.f_number", c.f_number, 0.1, 1e4)?;
+        let pp = c
+            .principal_point_px
+            .unwrap_or([w as f64 / 2.0, h as f64 / 2.0]);
+        if !pp.iter().all(|x| x.is_finite()) {
+            return self.err("camera.principal_point_px", pp, "two finite numbers [px]");
+        }
+        if !c.skew_px.is_finite() {
+            return self.err("camera.skew_px", c.skew_px, "a finite number [px]");
+        }
+        let d = &c.distortion;
+        for (k, v) in [
+            ("k1", d.k1),
+            ("k2", d.k2),
+            ("k3", d.k3),
+            ("p1", d.p1),
+            ("p2", d.p2),
+        ] {
+            self.in_range(&format!("camera.distortion.{k}"), v, -10.0, 10.0)?;
+        }
+        let intrinsics = Intrinsics {
+            width_px: w as u32,
+            height_px: h as u32,
+            pixel_pitch_m: pitch,
+            focal_length_m,
+            f_number,
+            principal_point_px: pp,
+            skew_px: c.skew_px,
+            distortion: Brown {
+                k1: d.k1,
+                k2: d.k2,
+                k3: d.k3,
+                p1: d.p1,
+                p2: d.p2,
+            },
+        };
+        let qe = self.table("camera.qe", &c.qe.wavelength_nm, &c.qe.value, (0.0, 1.0))?;
+        let transmittance = match &c.transmittance {
+            Some(t) => self.table(
+                "camera.transmittance",
+                &t.wavelength_nm,
+                &t.value,
+                (0.0, 1.0),
+            )?,
+            None => {
+                let (lo, hi) = qe.range_m();
+                SpectralTable::flat(lo, hi, 1.0)
+            }
+        };
+        if !(1..=16).contains(&c.bit_depth) {
+            return self.err("camera.bit_depth", c.bit_depth, "an integer in [1, 16]");
+        }
+        let n = &c.noise;
+        let noise = Noise {
+            shot: n.shot.then_some(Shot),
+            prnu: n
+                .prnu_sigma
+                .map(|s| {
+                    self.in_range("camera.noise.prnu_sigma", s, 0.0, 1.0)
+                        .map(|sigma| Prnu { sigma })
+                })
+                .transpose()?,
+            dark: match n.dark_current_e_per_s {
+                Some(r) => Some(DarkCurrent {
+                    rate_e_per_s: self.non_negative("camera.noise.dark_current_e_per_s", r)?,
+                    fpn_sigma: self.in_range(
+                        "camera.noise.dark_fpn_sigma",
+                        n.dark_fpn_sigma.unwrap_or(0.0),
+                        0.0,
+                        10.0,
+                    )?,
+                }),
+                None => None,
+            },
+            readout: n
+                .readout_sigma_e
+                .map(|s| {
+                    self.non_negative("camera.noise.readout_sigma_e", s)
+                        .map(|sigma_e| Readout { sigma_e })
+                })
+                .transpose()?,
+        };
+        let detector = Detector {
+            exposure_s: self.positive("camera.exposure_s", c.exposure_s)?,
+            full_well_e: self.positive("camera.full_well_e", c.full_well_e)?,
+            adc_gain_dn_per_e: self.positive("camera.adc_gain_dn_per_e", c.adc_gain_dn_per_e)?,
+            offset_dn: self.non_negative("camera.offset_dn", c.offset_dn)?,
+            bit_depth: c.bit_depth as u32,
+            qe,
+            transmittance,
+            noise,
+            seed: n.seed,
+        };
+        let band = match c.power_band_nm {
+            Some([lo, hi]) if lo.is_finite() && hi.is_finite() && lo > 0.0 && hi > lo => {
+                Some((lo * 1e-9, hi * 1e-9))
+            }
+            Some(b) => {
+                return self.err(
+                    "camera.power_band_nm",
+                    b,
+                    "[min, max] with 0 < min < max [nm]",
+                );
+            }
+            None => None,
+        };
+        Ok((
+            Camera {
+                intrinsics,
+                detector,
+            },
+            band,
+        ))
+    }
+
+    fn pose(&self, p: &RawPose, sun_position_m: DVec3, body: &Body) -> R<Pose> {
+        let camera_position_m = self.finite3("pose.camera_position_m", p.camera_position_m)?;
+        if body.shape.contains(camera_position_m)
+            || camera_position_m.length() <= body.shape.bounding_radius_m()
+        {
+            return self.err(
+                "pose.camera_position_m",
+                p.camera_position_m,
+                &format!(
+                    "a point outside the body (radius {} m)",
+                    body.shape.bounding_radius_m()
+                ),
+            );
+        }
+        let body_from_camera = match (p.attitude_wxyz, p.look_at_body) {
+            (Some(_), true) => {
+                return self.err(
+                    "pose.look_at_body",
+                    true,
+                    "either attitude_wxyz or look_at_body = true, not both",
+                );
+            }
+            (Some(q), false) => {
+                let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+                if !q.iter().all(|x| x.is_finite()) || (n - 1.0).abs() > 1e-6 {
+                    return self.err(
+                        "pose.attitude_wxyz",
+                        q,
+                        "a unit quaternion (w, x, y, z), norm within 1e-6 of 1",
+                    );
+                }
+                body_from_camera_wxyz(q.map(|x| x / n))
+            }
+            (None, true) => look_at(camera_position_m, DVec3::ZERO, DVec3::NEG_Z),
+            (None, false) => {
+                return self.err(
+                    "pose.attitude_wxyz",
+                    "(missing)",
+                    "a unit quaternion (w, x, y, z), or look_at_body = true",
+                );
+            }
+        };
+        Ok(Pose {
+            frame_id: p.frame_id,
+            camera_position_m,
+            body_from_camera,
+            sun_position_m,
+        })
+    }
+
+    fn render(&self, r: &RawRender, brdf: &Brdf) -> R<Settings> {
+        let mut s = match &r.preset {
+            Some(p) => {
+                Settings::preset(self.choice("render.preset", p, &["default", "high_accuracy"])?)
+                    .unwrap_or_default()
+            }
+            None => Settings::default(),
+        };
+        match (r.points, r.points_per_pixel) {
+            (Some(_), Some(_)) => {
+                return self.err(
+                    "render.points",
+                    r.points,
+                    "either points or points_per_pixel, not both",
+                );
+            }
+            (Some(n), None) => {
+                let n = self.in_range("render.points", n, 1.0, 1e9)?;
+                s.points = PointBudget::Total(n.round() as usize);
+            }
+            (None, Some(p)) => {
+                s.points =
+                    PointBudget::PerPixel(self.in_range("render.points_per_pixel", p, 1e-6, 1e4)?)
+            }
+            (None, None) => {}
+        }
+        if let Some(m) = r.max_points {
+            s.max_points = self.in_range("render.max_points", m, 1.0, 1e9)?.round() as usize;
+        }
+        if let Some(v) = &r.sampling {
+            s.sampling =
+                match self.choice("render.sampling", v, &["uniform", "projected_uniform"])? {
+                    "uniform" => Sampling::Uniform,
+                    _ => Sampling::ProjectedUniform,
+                };
+        }
+        if let Some(v) = &r.split {
+            s.split = match self.choice("render.split", v, &["aspect", "eq23"])? {
+                "eq23" => Split::Eq23,
+                _ => Split::Aspect,
+            };
+        }
+        let ppd = self.in_range(
+            "render.trapezoid_points_per_deg",
+            r.trapezoid_points_per_deg.unwrap_or(5.0),
+            1e-3,
+            1e3,
+        )?;
+        if let Some(v) = &r.integration {
+            s.integration = match self.choice(
+                "render.integration",
+                v,
+                &["auto", "exact", "trapezoidal", "pointwise"],
+            )? {
+                "auto" => Integration::Auto {
+                    points_per_deg: ppd,
+                },
+                "exact" => {
+                    if brdf.exact_form().is_none() {
+                        return self.err("render.integration", v, &format!("\"exact\" has no closed form for the {} BRDF: use auto, trapezoidal or pointwise", brdf.name()));
+                    }
+                    Integration::Exact
+                }
+                "trapezoidal" => Integration::Trapezoidal {
+                    points_per_deg: ppd,
+                },
+                _ => Integration::Pointwise,
+            };
+        } else {
+            s.integration = Integration::Auto {
+                points_per_deg: ppd,
+            };
+        }
+        if let Some(v) = &r.fov {
+            s.fov = match self.choice("render.fov", v, &["frustum", "cone"])? {
+                "cone" => FovShape::Cone,
+                _ => FovShape::Frustum,
+            };
+        }
+        if let Some(v) = &r.gridding {
+            s.gridding = match self.choice(
+                "render.gridding",
+                v,
+                &["polygon", "nearest", "area", "gaussian"],
+            )? {
+                "nearest" => Gridding::Nearest,
+                "area" => Gridding::Area,
+                "gaussian" => {
+                    let window = r.gaussian_window_px.unwrap_or(3);
+                    if !(1..=15).contains(&window) || window % 2 == 0 {
+                        return self.err(
+                            "render.gaussian_window_px",
+                            window,
+                            "an odd integer in [1, 15]",
+                        );
+                    }
+                    // Default: 3 sigma at the window's edge (Sec. 4.8).
+                    let sigma = r.gaussian_sigma_px.unwrap_or(window as f64 / 2.0 / 3.0);
+                    Gridding::Gaussian {
+                        window_px: window as u32,
+                        sigma_px: self.in_range("render.gaussian_sigma_px", sigma, 1e-3, 10.0)?,
+                    }
+                }
+                _ => Gridding::Polygon,
+            };
+        }
+        if let Some(m) = r.supersampling {
+            if !(1..=16).contains(&m) {
+                return self.err("render.supersampling", m, "an integer in [1, 16]");
+            }
+            s.supersampling = m as u32;
+        }
+        if let Some(v) = &r.reconstruction {
+            s.reconstruction = match self.choice(
+                "render.reconstruction",
+                v,
+                &["box", "bilinear", "lanczos", "gaussian"],
+            )? {
+                "bilinear" => Reconstruction::Bilinear,
+                "lanczos" => {
+                    let a = r.lanczos_a.unwrap_or(3);
+                    if !(1..=8).contains(&a) {
+                        return self.err("render.lanczos_a", a, "an integer in [1, 8]");
+                    }
+                    Reconstruction::Lanczos { a: a as u32 }
+                }
+                "gaussian" => Reconstruction::Gaussian {
+                    sigma_px: self.in_range(
+                        "render.reconstruction_sigma_px",
+                        r.reconstruction_sigma_px.unwrap_or(0.5),
+                        1e-3,
+                        10.0,
+                    )?,
+                },
+                _ => Reconstruction::Box,
+            };
+        }
+        if let Some(a) = r.antialias_sigma_px {
+            s.antialias_sigma_px = self.in_range("render.antialias_sigma_px", a, 0.0, 10.0)?;
+        }
+        if let Some(t) = r.threads {
+            if !(0..=1024).contains(&t) {
+                return self.err(
+                    "render.threads",
+                    t,
+                    "an integer in [0, 1024] (0 = all cores)",
+                );
+            }
+            s.threads = t as usize;
+        }
+        if let Some(t) = r.bounding_tolerance_rad {
+            s.bounding_tolerance_rad =
+                self.in_range("render.bounding_tolerance_rad", t, 1e-12, 1e-2)?;
+        }
+        if let Some(d) = r.depth {
+            s.depth = d;
+        }
+        Ok(s)
+    }
+}

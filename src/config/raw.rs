@@ -1,0 +1,162 @@
+//! Scene files as written (serde, TOML). Unknown keys are errors, so a typo never silently
+//! falls back to a default. Validation and unit conversion happen in [`super::validate`].
+
+use serde::Deserialize;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawScene {
+    pub sun: RawSun,
+    pub body: RawBody,
+    pub camera: RawCamera,
+    pub pose: RawPose,
+    #[serde(default)]
+    pub render: RawRender,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSun {
+    /// `"blackbody"` or `"tabulated"`.
+    pub spectrum: String,
+    pub temperature_k: Option<f64>,
+    pub radius_m: Option<f64>,
+    /// Rescale the black body so that its total irradiance at 1 AU is this [W/m^2].
+    pub irradiance_at_1au_w_m2: Option<f64>,
+    pub wavelength_nm: Option<Vec<f64>>,
+    pub irradiance_w_m2_nm: Option<Vec<f64>>,
+    /// Distance from the Sun at which the tabulated irradiance holds [m] (default 1 AU).
+    pub distance_m: Option<f64>,
+    /// Sun position relative to the body centre, body frame [m].
+    pub position_m: [f64; 3],
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawBody {
+    #[serde(default = "default_name")]
+    pub name: String,
+    #[serde(default = "default_shape")]
+    pub shape: String,
+    pub radius_m: f64,
+    pub brdf: String,
+    pub albedo: f64,
+    pub albedo_type: String,
+    pub roughness_rad: Option<f64>,
+    pub shininess: Option<f64>,
+    pub diffuse_weight: Option<f64>,
+    pub specular_weight: Option<f64>,
+}
+
+fn default_name() -> String {
+    "body".into()
+}
+fn default_shape() -> String {
+    "sphere".into()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub enum OneOrTwo {
+    One(f64),
+    Two([f64; 2]),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawCurve {
+    pub wavelength_nm: Vec<f64>,
+    pub value: Vec<f64>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawDistortion {
+    #[serde(default)]
+    pub k1: f64,
+    #[serde(default)]
+    pub k2: f64,
+    #[serde(default)]
+    pub k3: f64,
+    #[serde(default)]
+    pub p1: f64,
+    #[serde(default)]
+    pub p2: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawCamera {
+    pub resolution_px: [i64; 2],
+    pub pixel_pitch_m: OneOrTwo,
+    pub focal_length_m: f64,
+    pub f_number: f64,
+    pub principal_point_px: Option<[f64; 2]>,
+    #[serde(default)]
+    pub skew_px: f64,
+    #[serde(default)]
+    pub distortion: RawDistortion,
+    pub exposure_s: f64,
+    pub full_well_e: f64,
+    pub adc_gain_dn_per_e: f64,
+    #[serde(default)]
+    pub offset_dn: f64,
+    pub bit_depth: i64,
+    pub qe: RawCurve,
+    pub transmittance: Option<RawCurve>,
+    /// Band for `power.fits` [nm]; the whole spectrum when absent.
+    pub power_band_nm: Option<[f64; 2]>,
+    #[serde(default)]
+    pub noise: RawNoise,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawNoise {
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default)]
+    pub shot: bool,
+    pub prnu_sigma: Option<f64>,
+    pub dark_current_e_per_s: Option<f64>,
+    pub dark_fpn_sigma: Option<f64>,
+    pub readout_sigma_e: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPose {
+    #[serde(default)]
+    pub frame_id: u64,
+    pub camera_position_m: [f64; 3],
+    /// Unit quaternion (w, x, y, z), scalar first, Hamilton, camera -> body.
+    pub attitude_wxyz: Option<[f64; 4]>,
+    /// Point the boresight at the body centre with image down along the projected body -Z.
+    #[serde(default)]
+    pub look_at_body: bool,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawRender {
+    pub preset: Option<String>,
+    pub points: Option<f64>,
+    pub points_per_pixel: Option<f64>,
+    pub max_points: Option<f64>,
+    pub sampling: Option<String>,
+    pub split: Option<String>,
+    pub integration: Option<String>,
+    pub trapezoid_points_per_deg: Option<f64>,
+    pub fov: Option<String>,
+    pub gridding: Option<String>,
+    pub gaussian_window_px: Option<i64>,
+    pub gaussian_sigma_px: Option<f64>,
+    pub supersampling: Option<i64>,
+    pub reconstruction: Option<String>,
+    pub lanczos_a: Option<i64>,
+    pub reconstruction_sigma_px: Option<f64>,
+    pub antialias_sigma_px: Option<f64>,
+    pub threads: Option<i64>,
+    pub bounding_tolerance_rad: Option<f64>,
+    pub depth: Option<bool>,
+}

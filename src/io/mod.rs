@@ -1,0 +1,52 @@
+//! Output files: FITS images (hand-written writer, see `docs/dependencies.md`) and PNG (the
+//! `png` crate).
+
+pub mod fits;
+
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    #[error("{path}: {source}")]
+    File {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: PNG encoding failed: {source}")]
+    Png {
+        path: String,
+        source: png::EncodingError,
+    },
+}
+
+/// Writes a grayscale PNG: 8-bit when `bit_depth <= 8`, otherwise 16-bit holding the DN as
+/// they are (a 12-bit image keeps values 0..4095).
+pub fn write_png_gray(
+    path: &Path,
+    width: usize,
+    height: usize,
+    dn: &[u16],
+    bit_depth: u32,
+) -> Result<(), IoError> {
+    let p = path.display().to_string();
+    let file = std::fs::File::create(path).map_err(|source| IoError::File {
+        path: p.clone(),
+        source,
+    })?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    enc.set_color(png::ColorType::Grayscale);
+    let data: Vec<u8> = if bit_depth <= 8 {
+        enc.set_depth(png::BitDepth::Eight);
+        dn.iter().map(|&x| x.min(255) as u8).collect()
+    } else {
+        enc.set_depth(png::BitDepth::Sixteen);
+        dn.iter().flat_map(|&x| x.to_be_bytes()).collect()
+    };
+    let png_err = |source| IoError::Png {
+        path: p.clone(),
+        source,
+    };
+    let mut w = enc.write_header().map_err(png_err)?;
+    w.write_image_data(&data).map_err(png_err)?;
+    w.finish().map_err(png_err)
+}

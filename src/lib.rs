@@ -1,0 +1,51 @@
+//! # optistim
+//!
+//! A physically based renderer of planets and moons for hardware-in-the-loop optical
+//! stimulators, after Pizzetti et al. (`../shared/papers/physically-based-rendering-of-celestial-bodies.md`).
+//!
+//! # Layout
+//!
+//! | module | holds |
+//! | --- | --- |
+//! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates, ray-sphere |
+//! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45) |
+//! | [`brdf`] | reflectance models, one file each; phase laws (Eq. 48) and albedo conversions |
+//! | [`body`] | the body's shape (sphere now; ellipsoids and meshes later) and reflectance |
+//! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
+//! | [`detector`] | (P/L) -> signal -> electrons with noises -> DN (Eqs. 45-47) |
+//! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
+//! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
+//! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
+//! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
+//! | [`io`] | FITS and PNG outputs |
+//! | [`app`] | the commands behind the binary: `render`, `bench` |
+//!
+//! # Data flow of one frame
+//!
+//! ```text
+//! config/*.toml ─► config::load ─► (Scene, Pose, Settings)
+//!                                        │
+//!   render::Renderer::render(scene, pose, settings)
+//!     view (CSF) → bounding → sampling → pruning → integration → projection
+//!     → gridding (i64 fixed point) → reconstruction  ─►  Frame { (P/L) image, depth, stats }
+//!                                        │
+//!   detector: S = (P/L)·∫QE·T·λ/(hc)·L_e dλ  → electrons (+noise) → DN
+//!                                        │
+//!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
+//! ```
+//!
+//! Rules: nothing below `app` knows about files except `config`, `trajectory` and `io`; the
+//! renderer is a pure function of (scene, pose, settings) and never panics on input.
+
+pub mod app;
+pub mod body;
+pub mod brdf;
+pub mod camera;
+pub mod config;
+pub mod detector;
+pub mod geometry;
+pub mod io;
+pub mod radiometry;
+pub mod render;
+pub mod scene;
+pub mod trajectory;

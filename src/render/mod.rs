@@ -1,0 +1,530 @@
+//! The quadrangle renderer (paper Sec. 4, Fig. 6): one module per pipeline step, called in
+//! order by [`Renderer::render`]:
+//!
+//! ```text
+//! pose -> view (CSF) -> bounding -> sampling -> pruning -> integration -> projection
+//!      -> gridding (fixed point) -> reconstruction (super-sampling) -> (P/L) image [+ depth]
+//! ```
+//!
+//! The result is the geometric power-to-radiance image `(P/L)_{u,v}` [sr m^2] (Eq. 9); the
+//! [`crate::detector`] turns it into signal and DN. The renderer is a pure function of
+//! (scene, pose, settings): same inputs, same bits, whatever the thread count.
+
+pub mod bounding;
+pub mod depth;
+pub mod gridding;
+pub mod integration;
+pub mod projection;
+pub mod pruning;
+pub mod reconstruction;
+pub mod sampling;
+pub mod settings;
+pub mod view;
+
+use crate::scene::{Pose, Scene};
+use gridding::{Accum, Gridding};
+use integration::Method;
+use pruning::PRUNED;
+use rayon::prelude::*;
+use sampling::GridTrig;
+use serde::Serialize;
+pub use settings::{FovShape, Integration, PointBudget, Sampling, Settings, Split};
+use std::time::Instant;
+use view::View;
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum RenderError {
+    #[error(
+        "the camera is inside the body: range {range_m} m from the centre, body radius {radius_m} m"
+    )]
+    CameraInsideBody { range_m: f64, radius_m: f64 },
+    #[error("pose.{field} is not finite or not valid: {value}")]
+    BadPose { field: &'static str, value: String },
+    #[error(transparent)]
+    TooManyPoints(#[from] sampling::TooManyPoints),
+    #[error(transparent)]
+    NoClosedForm(#[from] integration::NoClosedForm),
+    #[error("render.{field} = {value}: {allowed}")]
+    BadSettings {
+        field: &'static str,
+        value: String,
+        allowed: &'static str,
+    },
+    #[error(
+        "the {stage} step produced a non-finite value ({value}); this is a bug, please report the scene"
+    )]
+    NonFinite { stage: &'static str, value: f64 },
+    #[error("could not start the render threads: {0}")]
+    Threads(String),
+}
+
+/// Wall time of each step [ms].
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageTimings {
+    pub bounding: f64,
+    pub sampling: f64,
+    pub pruning: f64,
+    pub integration: f64,
+    pub projection: f64,
+    pub gridding: f64,
+    pub reconstruction: f64,
+    pub depth: f64,
+    pub total: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct FrameStats {
+    pub phase_deg: f64,
+    /// Quadrangles sampled (longitude x latitude).
+    pub points_sampled: usize,
+    pub points_kept: usize,
+    pub grid_lon: usize,
+    pub grid_lat: usize,
+    /// Estimated pixels covered by lit, visible surface.
+    pub covered_px: f64,
+    /// Sum of (P/L) over the point cloud [sr m^2].
+    pub total_pl_points: f64,
+    /// Sum of (P/L) over the image [sr m^2] (less than the cloud only by what fell outside).
+    pub total_pl_image: f64,
+    pub timings_ms: StageTimings,
+}
+
+/// One rendered frame.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    pub width: usize,
+    pub height: usize,
+    /// `(P/L)` per pixel [sr m^2], row-major from the top-left.
+    pub pl: Vec<f64>,
+    /// Range to the surface per pixel [m], NaN where empty (when `settings.depth`).
+    pub depth_m: Option<Vec<f64>>,
+    pub stats: FrameStats,
+}
+
+/// Per-frame buffers, cleared and reused rather than reallocated.
+#[derive(Default)]
+struct Buffers {
+    keep: Vec<u8>,
+    pl: Vec<f64>,
+    mids: Vec<[f64; 2]>,
+    verts: Vec<[f64; 2]>,
+    scratch: Vec<Vec<i64>>,
+    fixed: Vec<i64>,
+}
+
+/// Owns the worker threads and buffers; render many frames with one.
+pub struct Renderer {
+    pool: rayon::ThreadPool,
+    threads: usize,
+    buf: Buffers,
+}
+
+impl Renderer {
+    /// `threads = 0` uses every core.
+    pub fn new(threads: usize) -> Result<Self, RenderError> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("optistim-render-{i}"))
+            .build()
+            .map_err(|e| RenderError::Threads(e.to_string()))?;
+        let threads = pool.current_num_threads();
+        Ok(Renderer {
+            pool,
+            threads,
+            buf: Buffers::default(),
+        })
+    }
+
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+
+    /// Renders the (P/L) image of `scene` seen from `pose`.
+    pub fn render(
+        &mut self,
+        scene: &Scene,
+        pose: &Pose,
+        settings: &Settings,
+    ) -> Result<Frame, RenderError> {
+        check_pose(scene, pose)?;
+        check_settings(settings)?;
+        let method = Method::resolve(settings.integration, &scene.body.brdf)?;
+        let threads = self.threads;
+        let buf = &mut self.buf;
+        self.pool
+            .install(|| render_in_pool(scene, pose, settings, method, threads, buf))
+    }
+}
+
+fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
+    let bad = |field, value: String| Err(RenderError::BadPose { field, value });
+    if !pose.camera_position_m.is_finite() {
+        return bad("camera_position_m", format!("{:?}", pose.camera_position_m));
+    }
+    if !pose.sun_position_m.is_finite() || pose.sun_position_m.length() == 0.0 {
+        return bad("sun_position_m", format!("{:?}", pose.sun_position_m));
+    }
+    let q = pose.body_from_camera;
+    if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
+        return bad("attitude", format!("{q:?} (must be a unit quaternion)"));
+    }
+    let radius_m = scene.body.shape.bounding_radius_m();
+    let range_m = pose.camera_position_m.length();
+    if scene.body.shape.contains(pose.camera_position_m) || range_m <= radius_m * (1.0 + 1e-12) {
+        return Err(RenderError::CameraInsideBody { range_m, radius_m });
+    }
+    if scene.body.shape.contains(pose.sun_position_m) {
+        return bad("sun_position_m", "inside the body".into());
+    }
+    Ok(())
+}
+
+fn check_settings(s: &Settings) -> Result<(), RenderError> {
+    let bad = |field, value: String, allowed| {
+        Err(RenderError::BadSettings {
+            field,
+            value,
+            allowed,
+        })
+    };
+    match s.points {
+        PointBudget::Total(0) => return bad("points", "0".into(), "at least 1"),
+        PointBudget::PerPixel(p) if !(p.is_finite() && p > 0.0 && p <= 1e4) => {
+            return bad("points_per_pixel", p.to_string(), "a number in (0, 10000]");
+        }
+        _ => {}
+    }
+    if s.supersampling == 0 || s.supersampling > 16 {
+        return bad(
+            "supersampling",
+            s.supersampling.to_string(),
+            "an integer in [1, 16]",
+        );
+    }
+    if !(s.antialias_sigma_px.is_finite() && s.antialias_sigma_px >= 0.0) {
+        return bad(
+            "antialias_sigma_px",
+            s.antialias_sigma_px.to_string(),
+            "a number >= 0",
+        );
+    }
+    if let Gridding::Gaussian {
+        window_px,
+        sigma_px,
+    } = s.gridding
+    {
+        if window_px == 0 || window_px > 15 || window_px % 2 == 0 {
+            return bad(
+                "gaussian_window_px",
+                window_px.to_string(),
+                "an odd integer in [1, 15]",
+            );
+        }
+        if !(sigma_px.is_finite() && sigma_px > 0.0) {
+            return bad("gaussian_sigma_px", sigma_px.to_string(), "a number > 0");
+        }
+    }
+    if let Integration::Trapezoidal { points_per_deg } | Integration::Auto { points_per_deg } =
+        s.integration
+    {
+        if !(points_per_deg.is_finite() && points_per_deg > 0.0) {
+            return bad(
+                "trapezoid_points_per_deg",
+                points_per_deg.to_string(),
+                "a number > 0",
+            );
+        }
+    }
+    Ok(())
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+fn render_in_pool(
+    scene: &Scene,
+    pose: &Pose,
+    settings: &Settings,
+    method: Method,
+    threads: usize,
+    buf: &mut Buffers,
+) -> Result<Frame, RenderError> {
+    let t_total = Instant::now();
+    let intr = &scene.camera.intrinsics;
+    let (width, height) = (intr.width_px as usize, intr.height_px as usize);
+    let m = settings.supersampling as usize;
+    let view = View::new(
+        intr,
+        &scene.body.shape,
+        pose,
+        settings.supersampling,
+        settings.fov,
+    );
+    let mut stats = FrameStats {
+        phase_deg: view.csf.phase_rad.to_degrees(),
+        ..Default::default()
+    };
+    let mut t = StageTimings::default();
+
+    let t0 = Instant::now();
+    let bounds = bounding::bound(&view, settings.bounding_tolerance_rad);
+    t.bounding = ms(t0);
+
+    let mut pl_image = vec![0.0; width * height];
+    if let Some(bounds) = bounds {
+        let t0 = Instant::now();
+        let plan = sampling::plan(&view, &bounds, settings)?;
+        let alpha = view.csf.phase_rad;
+        let trig = GridTrig::new(
+            sampling::edges(
+                bounds.lon.0,
+                bounds.lon.1,
+                plan.n_lon,
+                settings.sampling,
+                alpha,
+            ),
+            sampling::edges(
+                bounds.lat.0,
+                bounds.lat.1,
+                plan.n_lat,
+                settings.sampling,
+                0.0,
+            ),
+        );
+        stats.grid_lon = plan.n_lon;
+        stats.grid_lat = plan.n_lat;
+        stats.points_sampled = plan.n_lon * plan.n_lat;
+        stats.covered_px = plan.covered_px;
+        t.sampling = ms(t0);
+
+        let t0 = Instant::now();
+        pruning::prune(&view, &trig, &mut buf.keep);
+        stats.points_kept = buf.keep.par_iter().filter(|&&c| c != PRUNED).count();
+        t.pruning = ms(t0);
+
+        let t0 = Instant::now();
+        let a_sun = scene.sun.area_m2();
+        let a_cam = intr.aperture_area_m2();
+        let total = integration::integrate(
+            &view,
+            &trig,
+            &buf.keep,
+            &scene.body.brdf,
+            method,
+            a_sun,
+            a_cam,
+            &mut buf.pl,
+        );
+        stats.total_pl_points = total;
+        t.integration = ms(t0);
+        if !total.is_finite() {
+            return Err(RenderError::NonFinite {
+                stage: "integration",
+                value: total,
+            });
+        }
+
+        let t0 = Instant::now();
+        projection::project_midpoints(&view, &trig, &buf.keep, &mut buf.mids);
+        if settings.gridding.needs_corners() {
+            projection::project_vertices(&view, &trig, &mut buf.verts);
+        }
+        t.projection = ms(t0);
+
+        let t0 = Instant::now();
+        let fine = grid(
+            settings.gridding,
+            &trig,
+            buf,
+            width * m,
+            height * m,
+            total,
+            threads,
+        );
+        t.gridding = ms(t0);
+
+        let t0 = Instant::now();
+        pl_image = if m == 1 && settings.antialias_sigma_px == 0.0 {
+            fine
+        } else {
+            reconstruction::reconstruct(
+                &fine,
+                width,
+                height,
+                m,
+                settings.reconstruction,
+                settings.antialias_sigma_px,
+            )
+        };
+        t.reconstruction = ms(t0);
+    }
+    stats.total_pl_image = pl_image.iter().sum();
+    if !stats.total_pl_image.is_finite() {
+        return Err(RenderError::NonFinite {
+            stage: "gridding",
+            value: stats.total_pl_image,
+        });
+    }
+
+    let depth_m = settings.depth.then(|| {
+        let t0 = Instant::now();
+        let d = depth::depth_map(intr, &scene.body.shape, pose);
+        t.depth = ms(t0);
+        d
+    });
+    t.total = ms(t_total);
+    stats.timings_ms = t;
+    Ok(Frame {
+        width,
+        height,
+        pl: pl_image,
+        depth_m,
+        stats,
+    })
+}
+
+/// The gridding step: latitude rows are split into one contiguous block per thread; each block
+/// accumulates in fixed point into its own window (the bounding box of its footprints), and
+/// the windows are summed as integers, so the result does not depend on the split.
+fn grid(
+    kernel: Gridding,
+    trig: &GridTrig,
+    buf: &mut Buffers,
+    gw: usize,
+    gh: usize,
+    total: f64,
+    threads: usize,
+) -> Vec<f64> {
+    let mut out = vec![0.0; gw * gh];
+    if total <= 0.0 {
+        return out;
+    }
+    // 2^60 units for the whole cloud: no pixel can overflow, and the rounding of one
+    // contribution is at most 2^-61 of the total.
+    let scale = (1u64 << 60) as f64 / total;
+    let (nl, nk) = (trig.n_lon(), trig.n_lat());
+    let blocks = threads.max(1).min(nk);
+    buf.scratch.resize_with(blocks, Vec::new);
+    let reach = kernel.reach_px();
+    let corners_needed = kernel.needs_corners();
+    let (keep, pl, mids, verts) = (&buf.keep, &buf.pl, &buf.mids, &buf.verts);
+    let nan4 = [[f64::NAN; 2]; 4];
+    let windows: Vec<Option<(i64, i64, i64, i64)>> = buf
+        .scratch
+        .par_iter_mut()
+        .enumerate()
+        .map(|(b, scratch)| {
+            let (k0, k1) = (b * nk / blocks, (b + 1) * nk / blocks);
+            // Bounding box of this block's footprints.
+            let (mut x0, mut y0, mut x1, mut y1) = (
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            );
+            let mut grow = |p: [f64; 2]| {
+                if p[0].is_finite() && p[1].is_finite() {
+                    x0 = x0.min(p[0]);
+                    y0 = y0.min(p[1]);
+                    x1 = x1.max(p[0]);
+                    y1 = y1.max(p[1]);
+                }
+            };
+            for k in k0..k1 {
+                for i in 0..nl {
+                    let j = k * nl + i;
+                    if keep[j] == PRUNED {
+                        continue;
+                    }
+                    grow(mids[j]);
+                    if corners_needed {
+                        for (a, c) in [(i, k), (i + 1, k), (i + 1, k + 1), (i, k + 1)] {
+                            grow(verts[c * (nl + 1) + a]);
+                        }
+                    }
+                }
+            }
+            if x0 > x1 {
+                return None;
+            }
+            let wx0 = (x0.floor() as i64 - reach).max(0);
+            let wy0 = (y0.floor() as i64 - reach).max(0);
+            let wx1 = (x1.floor() as i64 + reach + 1).min(gw as i64);
+            let wy1 = (y1.floor() as i64 + reach + 1).min(gh as i64);
+            if wx1 <= wx0 || wy1 <= wy0 {
+                return None;
+            }
+            let (w, h) = (wx1 - wx0, wy1 - wy0);
+            scratch.clear();
+            scratch.resize((w * h) as usize, 0);
+            let mut acc = Accum {
+                data: scratch,
+                x0: wx0,
+                y0: wy0,
+                w,
+                h,
+                scale,
+            };
+            for k in k0..k1 {
+                for i in 0..nl {
+                    let j = k * nl + i;
+                    if keep[j] == PRUNED || pl[j] == 0.0 {
+                        continue;
+                    }
+                    let corners = if corners_needed {
+                        let v = |a: usize, c: usize| verts[c * (nl + 1) + a];
+                        [v(i, k), v(i + 1, k), v(i + 1, k + 1), v(i, k + 1)]
+                    } else {
+                        nan4
+                    };
+                    let mid = mids[j];
+                    if mid[0].is_finite() || corners_needed {
+                        kernel.splat(&corners, mid, pl[j], &mut acc);
+                    }
+                }
+            }
+            Some((wx0, wy0, w, h))
+        })
+        .collect();
+    // Sum the windows as integers over their union, then convert once.
+    let union =
+        windows
+            .iter()
+            .flatten()
+            .fold(None, |u: Option<(i64, i64, i64, i64)>, &(x, y, w, h)| {
+                Some(match u {
+                    None => (x, y, x + w, y + h),
+                    Some((a, b, c, d)) => (a.min(x), b.min(y), c.max(x + w), d.max(y + h)),
+                })
+            });
+    let Some((ux0, uy0, ux1, uy1)) = union else {
+        return out;
+    };
+    let uw = (ux1 - ux0) as usize;
+    buf.fixed.clear();
+    buf.fixed.resize(uw * (uy1 - uy0) as usize, 0);
+    for (win, scratch) in windows.iter().zip(&buf.scratch) {
+        let Some((x, y, w, h)) = *win else { continue };
+        for r in 0..h as usize {
+            let dst = ((y - uy0) as usize + r) * uw + (x - ux0) as usize;
+            let src = &scratch[r * w as usize..(r + 1) * w as usize];
+            for (d, s) in buf.fixed[dst..dst + w as usize].iter_mut().zip(src) {
+                *d += s;
+            }
+        }
+    }
+    let inv = 1.0 / scale;
+    let fixed = &buf.fixed;
+    out.par_chunks_mut(gw)
+        .enumerate()
+        .skip(uy0 as usize)
+        .take((uy1 - uy0) as usize)
+        .for_each(|(y, row)| {
+            let src = &fixed[(y - uy0 as usize) * uw..(y - uy0 as usize + 1) * uw];
+            for (o, &s) in row[ux0 as usize..ux1 as usize].iter_mut().zip(src) {
+                *o = s as f64 * inv;
+            }
+        });
+    out
+}

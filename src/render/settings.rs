@@ -1,0 +1,124 @@
+//! Every accuracy/speed knob of the renderer, in one plain struct that a sweep can vary.
+
+use super::gridding::Gridding;
+use super::reconstruction::Reconstruction;
+use serde::Serialize;
+
+/// How many quadrangles to sample.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PointBudget {
+    /// A fixed number of quadrangles kept after pruning (approximately).
+    Total(usize),
+    /// Quadrangles per pixel the body covers (of the final image, before super-sampling).
+    PerPixel(f64),
+}
+
+/// Longitude/latitude sampling (Sec. 4.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sampling {
+    Uniform,
+    /// Uniform in the projection on the plane normal to the camera direction (Eqs. 20-22).
+    ProjectedUniform,
+}
+
+/// How the budget is split between longitude and latitude.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Split {
+    /// Eq. 23: `N_lat = sqrt(N / ((1 + cos a)/2))`, `N_lon = N_lat (1 + cos a)/2`.
+    Eq23,
+    /// Quadrangles about square in the image, measured on a pilot grid.
+    Aspect,
+}
+
+/// Integration of the BRDF over each quadrangle (Sec. 4.6).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "method")]
+pub enum Integration {
+    /// Exact where a closed form exists (Lambert, Area), trapezoidal otherwise.
+    Auto { points_per_deg: f64 },
+    /// Closed form (Eqs. 34-36); an error for BRDFs without one.
+    Exact,
+    /// Trapezoidal rule with `points_per_deg` points per degree of quadrangle span (at least 2
+    /// per side); each sample uses its own Sun and camera directions and distances.
+    Trapezoidal { points_per_deg: f64 },
+    /// BRDF at the midpoint times the quadrangle's area (Eqs. 37-38).
+    Pointwise,
+}
+
+/// FOV shape for pruning (Eqs. 26-27).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FovShape {
+    /// The image rectangle (Eq. 27), distortion included.
+    Frustum,
+    /// The cone circumscribing the image (Eq. 26): cheaper, keeps a little more.
+    Cone,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Settings {
+    pub points: PointBudget,
+    /// Hard cap on sampled quadrangles (memory guard); the frame errors beyond it.
+    pub max_points: usize,
+    pub sampling: Sampling,
+    pub split: Split,
+    pub integration: Integration,
+    pub fov: FovShape,
+    pub gridding: Gridding,
+    /// Super-sampling factor (1 = off): gridding runs on a grid this many times finer.
+    pub supersampling: u32,
+    pub reconstruction: Reconstruction,
+    /// Anti-aliasing Gaussian applied on the fine grid before reconstruction [fine px], 0 = off.
+    pub antialias_sigma_px: f64,
+    /// Worker threads (0 = all cores).
+    pub threads: usize,
+    /// Stop refining the FOV-perimeter bounding when the limits move less than this [rad].
+    pub bounding_tolerance_rad: f64,
+    /// Also ray-cast the range to the surface per pixel.
+    pub depth: bool,
+}
+
+impl Default for Settings {
+    /// Fast and accurate to about 1e-4 per pixel on smooth scenes (see README).
+    fn default() -> Self {
+        Settings {
+            points: PointBudget::PerPixel(1.0),
+            max_points: 40_000_000,
+            sampling: Sampling::ProjectedUniform,
+            split: Split::Aspect,
+            integration: Integration::Auto {
+                points_per_deg: 5.0,
+            },
+            fov: FovShape::Frustum,
+            gridding: Gridding::Polygon,
+            supersampling: 1,
+            reconstruction: Reconstruction::Box,
+            antialias_sigma_px: 0.0,
+            threads: 0,
+            bounding_tolerance_rad: 1e-7,
+            depth: false,
+        }
+    }
+}
+
+impl Settings {
+    /// The high-accuracy preset: about 1e-5 per pixel on smooth scenes.
+    pub fn high_accuracy() -> Self {
+        Settings {
+            points: PointBudget::PerPixel(4.0),
+            ..Settings::default()
+        }
+    }
+
+    /// A preset by name: `default` or `high_accuracy`.
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
+            "default" => Some(Settings::default()),
+            "high_accuracy" => Some(Settings::high_accuracy()),
+            _ => None,
+        }
+    }
+}

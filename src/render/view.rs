@@ -1,0 +1,92 @@
+//! One frame's geometry, derived once from the pose: the CSF (Sec. 4.1), the camera and Sun
+//! positions in it, and `camera_from_csf`. Every later step works in CSF.
+
+use super::settings::FovShape;
+use crate::body::Shape;
+use crate::camera::Intrinsics;
+use crate::geometry::CsfFrame;
+use crate::scene::Pose;
+use glam::{DMat3, DVec3};
+
+pub struct View<'a> {
+    pub intrinsics: &'a Intrinsics,
+    pub shape: &'a Shape,
+    pub csf: CsfFrame,
+    pub camera_from_csf: DMat3,
+    /// Camera position in CSF [m].
+    pub cam_csf: DVec3,
+    /// Sun position in CSF [m].
+    pub sun_csf: DVec3,
+    /// Super-sampling factor: pixel coordinates are on a grid this many times finer.
+    pub m: f64,
+    pub fov: FovShape,
+    /// Cosine of the cone FOV half-angle (Eq. 26).
+    pub cone_cos: f64,
+    /// A point is in the frustum when its pixel lies within the frame grown by this [fine px].
+    pub margin_px: f64,
+}
+
+impl<'a> View<'a> {
+    pub fn new(
+        intrinsics: &'a Intrinsics,
+        shape: &'a Shape,
+        pose: &Pose,
+        m: u32,
+        fov: FovShape,
+    ) -> Self {
+        let camera_from_body = DMat3::from_quat(pose.body_from_camera.inverse());
+        let image_up_body = pose.body_from_camera * DVec3::NEG_Y;
+        let csf = CsfFrame::new(pose.sun_position_m, pose.camera_position_m, image_up_body);
+        let csf_from_body = csf.csf_from_body();
+        let half = intrinsics.circumscribed_half_angle();
+        View {
+            intrinsics,
+            shape,
+            csf,
+            camera_from_csf: camera_from_body * csf.body_from_csf,
+            cam_csf: csf_from_body * pose.camera_position_m,
+            sun_csf: csf_from_body * pose.sun_position_m,
+            m: m as f64,
+            fov,
+            cone_cos: (half + 1e-3).min(std::f64::consts::PI).cos(),
+            margin_px: 4.0 * m as f64,
+        }
+    }
+
+    /// Camera-frame coordinates of a CSF point.
+    #[inline(always)]
+    pub fn to_camera(&self, p_csf: DVec3) -> DVec3 {
+        self.camera_from_csf * (p_csf - self.cam_csf)
+    }
+
+    /// Fine-grid pixel coordinates of a camera-frame point, if in front of the camera.
+    #[inline(always)]
+    pub fn pixel(&self, p_cam: DVec3) -> Option<[f64; 2]> {
+        if p_cam.z <= 0.0 {
+            return None;
+        }
+        let [u, v] = self.intrinsics.project(p_cam.x, p_cam.y, p_cam.z);
+        Some([u * self.m, v * self.m])
+    }
+
+    /// FOV test (Eqs. 26-27) of a camera-frame point.
+    #[inline(always)]
+    pub fn in_fov(&self, p_cam: DVec3) -> bool {
+        match self.fov {
+            FovShape::Cone => p_cam.z >= self.cone_cos * p_cam.length(),
+            FovShape::Frustum => match self.pixel(p_cam) {
+                Some([u, v]) => {
+                    let (w, h) = (
+                        self.intrinsics.width_px as f64 * self.m,
+                        self.intrinsics.height_px as f64 * self.m,
+                    );
+                    u >= -self.margin_px
+                        && v >= -self.margin_px
+                        && u <= w + self.margin_px
+                        && v <= h + self.margin_px
+                }
+                None => false,
+            },
+        }
+    }
+}

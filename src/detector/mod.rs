@@ -46,6 +46,8 @@ impl Detector {
         let t = self.exposure_s;
         let noise = &self.noise;
         let seed = self.seed;
+        let fixed = noise.prnu.is_some() || noise.dark.is_some();
+        let temporal = noise.shot.is_some() || noise.dark.is_some() || noise.readout.is_some();
         dn_out
             .par_chunks_mut(4096)
             .enumerate()
@@ -53,33 +55,31 @@ impl Detector {
                 let base = chunk * 4096;
                 for (k, dn) in out.iter_mut().enumerate() {
                     let p = (base + k) as u64;
+                    // One generator per pixel for the fixed patterns, one per pixel and frame for
+                    // the temporal noises; draws are taken in a fixed order.
+                    let mut fixed_rng = fixed.then(|| rng(seed, Stream::Fixed, None, p));
+                    let mut temporal_rng =
+                        temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), p));
                     let mut s = signal_e_per_s[base + k];
-                    if let Some(prnu) = &noise.prnu {
-                        if s > 0.0 {
-                            s *= prnu.gain(&mut rng(seed, Stream::Prnu, None, p));
-                        }
+                    if let (Some(prnu), Some(r)) = (&noise.prnu, fixed_rng.as_mut()) {
+                        s *= prnu.gain(r);
                     }
                     let mut e = s * t;
-                    if noise.shot.is_some() {
-                        e = noise::shot::poisson(
-                            e,
-                            &mut rng(seed, Stream::Shot, Some(frame_id), p),
-                        );
-                    }
-                    if let Some(dark) = &noise.dark {
-                        let rate = dark.pixel_rate(&mut rng(seed, Stream::DarkPattern, None, p));
-                        e += noise::shot::poisson(
-                            rate * t,
-                            &mut rng(seed, Stream::DarkShot, Some(frame_id), p),
-                        );
-                    }
-                    if let Some(ro) = &noise.readout {
-                        e += ro.draw(&mut rng(seed, Stream::Readout, Some(frame_id), p));
+                    if let Some(r) = temporal_rng.as_mut() {
+                        if noise.shot.is_some() {
+                            e = noise::shot::poisson(e, r);
+                        }
+                        if let (Some(dark), Some(f)) = (&noise.dark, fixed_rng.as_mut()) {
+                            e += noise::shot::poisson(dark.pixel_rate(f) * t, r);
+                        }
+                        if let Some(ro) = &noise.readout {
+                            e += ro.draw(r);
+                        }
                     }
                     let e = e.clamp(0.0, self.full_well_e);
-                    *dn = (self.offset_dn + self.adc_gain_dn_per_e * e)
-                        .round()
-                        .clamp(0.0, max_dn) as u16;
+                    // Round half up (the value is clamped to >= 0 first; libm's `round` is not inlined).
+                    *dn = ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn) + 0.5)
+                        .min(max_dn) as u16;
                 }
             });
     }

@@ -35,11 +35,10 @@ impl Noise {
 #[derive(Clone, Copy)]
 #[repr(u64)]
 pub enum Stream {
-    Shot = 1,
-    Prnu = 2,
-    DarkPattern = 3,
-    DarkShot = 4,
-    Readout = 5,
+    /// Fixed patterns: PRNU gain, then the pixel's dark current.
+    Fixed = 1,
+    /// Temporal noises of one frame: shot, dark shot, readout, in that order.
+    Temporal = 2,
 }
 
 /// SplitMix64 finaliser: decorrelates nearby indices.

@@ -28,6 +28,14 @@ use crate::brdf::{Brdf, ExactForm, Local};
 use glam::DVec3;
 use rayon::prelude::*;
 
+/// Trapezoid points per side, at least, on quadrangles that straddle the limb or the
+/// terminator: the clamped integrand has a kink there (a step for the Area model), so the rule
+/// converges only as 1/n on them.
+const BOUNDARY_MIN_POINTS: usize = 4;
+/// The same for models whose `f_r cos(theta_i)` steps at the terminator (Area): the error of
+/// the step is 1/(2n) of a boundary quadrangle's energy.
+const STEP_MIN_POINTS: usize = 32;
+
 /// The method after checking it against the BRDF.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Method {
@@ -219,6 +227,11 @@ pub fn integrate(
         Method::Trapezoidal { points_per_deg } => points_per_deg,
         _ => 5.0,
     };
+    let boundary_min = if matches!(brdf, Brdf::Area(_)) {
+        STEP_MIN_POINTS
+    } else {
+        BOUNDARY_MIN_POINTS
+    };
     pl.clear();
     pl.resize(nl * nk, 0.0);
     let row_sums: Vec<f64> = pl
@@ -234,7 +247,7 @@ pub fn integrate(
                     continue;
                 }
                 let f = if class == BOUNDARY {
-                    trapezoid(view, brdf, trig, i, k, boundary_ppd, 4)
+                    trapezoid(view, brdf, trig, i, k, boundary_ppd, boundary_min)
                 } else {
                     match method {
                         Method::Exact(form) => {

@@ -43,7 +43,7 @@ fn reference(cfg: &optistim::config::Config) -> (Vec<f64>, Vec<bool>) {
     let sun = cfg.pose.sun_position_m;
     let r = R_MOON;
     let (gx, gw) = optistim::radiometry::gauss_legendre(4);
-    // Camera looks along -X, image right = +Y_body... use the pose's rotation.
+    // Lines of sight through the pose's own rotation (camera -> body).
     let q = cfg.pose.body_from_camera;
     let ray = |u: f64, v: f64| -> (Option<glam::DVec3>, f64) {
         let (x, y) = ((u - cu) / f_px, (v - cv) / f_px);

@@ -32,7 +32,8 @@ use rayon::prelude::*;
 /// terminator: the clamped integrand has a kink there (a step for the Area model), so the rule
 /// converges only as 1/n on them.
 const BOUNDARY_MIN_POINTS: usize = 4;
-/// The same for models whose `f_r cos(theta_i)` steps at the terminator (Area): the error of
+/// The same for models whose `f_r cos(theta_i)` steps at the terminator
+/// ([`Brdf::steps_at_terminator`]): the error of
 /// the step is 1/(2n) of a boundary quadrangle's energy.
 const STEP_MIN_POINTS: usize = 32;
 
@@ -227,7 +228,7 @@ pub fn integrate(
         Method::Trapezoidal { points_per_deg } => points_per_deg,
         _ => 5.0,
     };
-    let boundary_min = if matches!(brdf, Brdf::Area(_)) {
+    let boundary_min = if brdf.steps_at_terminator() {
         STEP_MIN_POINTS
     } else {
         BOUNDARY_MIN_POINTS

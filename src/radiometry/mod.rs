@@ -26,7 +26,7 @@ pub enum TableError {
     LengthMismatch(usize, usize),
     #[error("value at index {index} is not finite ({value})")]
     NotFinite { index: usize, value: f64 },
-    #[error("wavelengths must increase strictly (index {index}: {value} after {prev})")]
+    #[error("wavelengths must increase strictly (index {index}: {value:.6e} m after {prev:.6e} m)")]
     NotIncreasing { index: usize, value: f64, prev: f64 },
     #[error("value at index {index} is {value}, allowed range is [{min}, {max}]")]
     OutOfRange {

@@ -61,13 +61,6 @@ fn measured_phase_law_converges_to_the_analytic_one() {
                 errs[0] > errs[3] || errs[0] < 1e-4,
                 "{brdf} {phase}: error must fall with distance: {errs:?}"
             );
-            // KNOWN OPEN (issue 2): the Area model's radiance steps to zero at the terminator and
-            // the thin 150 deg crescent keeps a 2.3e-3 numerical error at 1 point per pixel
-            // (boundary quadrangles integrated by a clamped trapezoid). Reported in the note;
-            // this one case is not asserted until the step is integrated exactly.
-            if brdf == "area" && phase >= 150.0 {
-                continue;
-            }
             for w in errs.windows(2) {
                 assert!(
                     w[0] > 5.0 * w[1] || w[1] < 1e-3,

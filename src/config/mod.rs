@@ -524,6 +524,12 @@ impl Validator<'_> {
                 _ => Split::Aspect,
             };
         }
+        if let Some(n) = r.boundary_nodes {
+            if !(1..=32).contains(&n) {
+                return self.err("render.boundary_nodes", n, "an integer in [1, 32]");
+            }
+            s.boundary_nodes = n as u32;
+        }
         let ppd = self.in_range(
             "render.trapezoid_points_per_deg",
             r.trapezoid_points_per_deg.unwrap_or(5.0),

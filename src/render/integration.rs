@@ -16,9 +16,16 @@
 //!   each sample with its own directions and distances.
 //! - **pointwise**: the BRDF at the midpoint times the quadrangle's area (Eqs. 37-38).
 //!
-//! Quadrangles that straddle the limb or the terminator (see [`super::pruning`]) are always
-//! integrated by the trapezoidal rule with the integrand clamped at zero, which no closed form
-//! can do.
+//! Quadrangles that straddle the limb or the terminator (see [`super::pruning`]) are integrated
+//! over their lit and visible part only, which no closed form can do. On a sphere that part is
+//! known exactly ([`SphereClip`]): at latitude `lat` a point is lit when
+//! `cos(lat) cos(lon) > R/d_sun` and visible when `cos(lat) cos(lon - alpha) > R/d_cam` (Eqs.
+//! 29 and 31 with the finite distances), so each Gauss-Legendre latitude node gets its exact
+//! longitude interval and a Gauss-Legendre rule over it. The latitude range is split where the
+//! interval's ends switch from one curve to another, and mapped by `lat = end - (end-a) u^2`
+//! where the interval closes like a square root, so every piece is smooth: the Area model's
+//! step at the terminator costs nothing, and Lambert's kink neither. Other shapes fall back to
+//! the trapezoidal rule with the integrand clamped at zero.
 
 use super::pruning::{BOUNDARY, PRUNED};
 use super::sampling::GridTrig;
@@ -28,14 +35,173 @@ use crate::brdf::{Brdf, ExactForm, Local};
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// Trapezoid points per side, at least, on quadrangles that straddle the limb or the
-/// terminator: the clamped integrand has a kink there (a step for the Area model), so the rule
+/// Trapezoid points per side, at least, on boundary quadrangles of shapes without an exact
+/// clip: the clamped integrand has a kink there (a step for the Area model), so the rule
 /// converges only as 1/n on them.
 const BOUNDARY_MIN_POINTS: usize = 4;
 /// The same for models whose `f_r cos(theta_i)` steps at the terminator
 /// ([`Brdf::steps_at_terminator`]): the error of
 /// the step is 1/(2n) of a boundary quadrangle's energy.
 const STEP_MIN_POINTS: usize = 32;
+
+/// The lit-and-visible region of a sphere in CSF (Sun on +X, camera at longitude `alpha`).
+#[derive(Clone, Copy, Debug)]
+pub struct SphereClip {
+    /// `R / d_sun`: lit where `cos(lat) cos(lon) > eps_sun`.
+    eps_sun: f64,
+    /// `R / d_cam`: visible where `cos(lat) cos(lon - alpha) > eps_cam`.
+    eps_cam: f64,
+    alpha: f64,
+}
+
+impl SphereClip {
+    /// The clip of `view`, when its shape is a sphere.
+    pub fn new(view: &View) -> Option<Self> {
+        match view.shape {
+            crate::body::Shape::Sphere(s) => {
+                let r = s.radius_m;
+                let (sun, cam) = (view.sun_csf, view.cam_csf);
+                Some(SphereClip {
+                    eps_sun: r / sun.length(),
+                    eps_cam: r / cam.length(),
+                    alpha: cam.y.atan2(cam.x),
+                })
+            }
+        }
+    }
+
+    /// The lit and visible longitude interval at `cos(lat)` within `[p0, p1]` (CSF longitudes
+    /// within (-pi, pi]); `None` when empty.
+    #[inline(always)]
+    fn lon_interval(&self, cos_lat: f64, p0: f64, p1: f64) -> Option<(f64, f64)> {
+        if cos_lat <= self.eps_sun || cos_lat <= self.eps_cam {
+            return None;
+        }
+        let a_s = (self.eps_sun / cos_lat).acos();
+        let a_c = (self.eps_cam / cos_lat).acos();
+        let lo = p0.max(-a_s).max(self.alpha - a_c);
+        let hi = p1.min(a_s).min(self.alpha + a_c);
+        (hi > lo).then_some((lo, hi))
+    }
+
+    /// Latitudes in `(l0, l1)` where an end of the interval switches curves, sorted, into
+    /// `out` (at most 16).
+    fn breaks(&self, p0: f64, p1: f64, l0: f64, l1: f64, out: &mut [f64; 16]) -> usize {
+        let mut n = 0;
+        let mut push = |cos_lat: f64| {
+            if cos_lat > 0.0 && cos_lat < 1.0 {
+                let lat = cos_lat.acos();
+                for l in [lat, -lat] {
+                    if l > l0 && l < l1 && n < out.len() {
+                        out[n] = l;
+                        n += 1;
+                    }
+                }
+            }
+        };
+        // Where an interval end reaches a side of the quadrangle: a = |p| on either curve.
+        for p in [p0, p1] {
+            push(self.eps_sun / p.cos());
+            push(self.eps_cam / (p - self.alpha).cos());
+        }
+        // Where the limb crosses the terminator.
+        let (sa, ca) = self.alpha.sin_cos();
+        if sa.abs() > 1e-12 {
+            let lon = ((self.eps_cam / self.eps_sun - ca) / sa).atan();
+            push(self.eps_sun / lon.cos());
+            let lon2 = lon - std::f64::consts::PI * lon.signum();
+            push(self.eps_sun / lon2.cos());
+        }
+        // Where either interval closes.
+        push(self.eps_sun);
+        push(self.eps_cam);
+        out[..n].sort_by(f64::total_cmp);
+        n
+    }
+}
+
+/// Gauss-Legendre nodes and weights on [0, 1].
+#[derive(Clone, Debug)]
+pub struct Nodes {
+    x: Vec<f64>,
+    w: Vec<f64>,
+}
+
+impl Nodes {
+    pub fn new(n: usize) -> Self {
+        let (x, w) = crate::radiometry::gauss_legendre(n);
+        Nodes {
+            x: x.iter().map(|x| 0.5 * (x + 1.0)).collect(),
+            w: w.iter().map(|w| 0.5 * w).collect(),
+        }
+    }
+}
+
+/// The integral over quadrangle `(i, k)` of `f_r mu0 mu cos(lat) cos(eps)/(d_s^2 d_c^2)`
+/// restricted exactly to the lit and visible part of a sphere.
+fn clipped(
+    view: &View,
+    brdf: &Brdf,
+    clip: &SphereClip,
+    nodes: &Nodes,
+    trig: &GridTrig,
+    i: usize,
+    k: usize,
+) -> f64 {
+    let (mut p0, mut p1) = (trig.lon[i], trig.lon[i + 1]);
+    // Longitudes into (-pi, pi] around the quadrangle's centre (the curves are written there).
+    let shift = crate::geometry::wrap_pi(0.5 * (p0 + p1)) - 0.5 * (p0 + p1);
+    p0 += shift;
+    p1 += shift;
+    let (l0, l1) = (trig.lat[k], trig.lat[k + 1]);
+    let mut cuts = [0.0; 16];
+    let nb = clip.breaks(p0, p1, l0, l1, &mut cuts);
+    let mut edges = [0.0; 18];
+    edges[0] = l0;
+    edges[1..=nb].copy_from_slice(&cuts[..nb]);
+    edges[nb + 1] = l1;
+    let closes = |lat: f64| {
+        let c = lat.cos();
+        let tol = 1e-12;
+        (c - clip.eps_sun).abs() < tol || (c - clip.eps_cam).abs() < tol
+    };
+    let mut total = 0.0;
+    for piece in edges[..nb + 2].windows(2) {
+        let (a, b) = (piece[0], piece[1]);
+        if b <= a {
+            continue;
+        }
+        // Which end (if any) the interval closes at: map it by a square so the width is smooth.
+        let (close_lo, close_hi) = (closes(a), closes(b));
+        for (&u, &wu) in nodes.x.iter().zip(&nodes.w) {
+            let (lat, jac) = match (close_lo, close_hi) {
+                (false, true) => (b - (b - a) * u * u, 2.0 * (b - a) * u),
+                (true, false) => (a + (b - a) * u * u, 2.0 * (b - a) * u),
+                (true, true) => {
+                    // Closes at both ends: sine map, width ~ sin, smooth.
+                    let t = 0.5 * (1.0 - (std::f64::consts::PI * u).cos());
+                    let dt = 0.5 * std::f64::consts::PI * (std::f64::consts::PI * u).sin();
+                    (a + (b - a) * t, (b - a) * dt)
+                }
+                (false, false) => (a + (b - a) * u, b - a),
+            };
+            let (sl, cl) = lat.sin_cos();
+            let Some((lo, hi)) = clip.lon_interval(cl, p0, p1) else {
+                continue;
+            };
+            let mut row = 0.0;
+            for (&v, &wv) in nodes.x.iter().zip(&nodes.w) {
+                let (so, co) = (lo + (hi - lo) * v).sin_cos();
+                let (g, geo) = sample(view, DVec3::new(cl * co, cl * so, sl));
+                if g.mu0 > 0.0 && g.mu > 0.0 && geo > 0.0 {
+                    row += wv * brdf.eval(&g) * g.mu0 * g.mu * geo;
+                }
+            }
+            total += wu * jac * row * (hi - lo) * cl;
+        }
+    }
+    total
+}
 
 /// The method after checking it against the BRDF.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -204,6 +370,8 @@ fn trapezoid(
 
 /// Fills `pl` with `(P/L)_j` [sr m^2] of every quadrangle (zero where pruned) and returns
 /// their sum, accumulated row by row in a fixed order.
+/// `boundary_nodes` Gauss-Legendre nodes per dimension and per piece integrate the
+/// quadrangles that straddle the limb or the terminator.
 #[allow(clippy::too_many_arguments)]
 pub fn integrate(
     view: &View,
@@ -211,10 +379,13 @@ pub fn integrate(
     keep: &[u8],
     brdf: &Brdf,
     method: Method,
+    boundary_nodes: usize,
     a_sun_m2: f64,
     a_cam_m2: f64,
     pl: &mut Vec<f64>,
 ) -> f64 {
+    let clip = SphereClip::new(view);
+    let nodes = Nodes::new(boundary_nodes.max(1));
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
     let r = view.shape.bounding_radius_m();
     let k_const = a_sun_m2 * a_cam_m2 * r * r;
@@ -248,7 +419,10 @@ pub fn integrate(
                     continue;
                 }
                 let f = if class == BOUNDARY {
-                    trapezoid(view, brdf, trig, i, k, boundary_ppd, boundary_min)
+                    match &clip {
+                        Some(c) => clipped(view, brdf, c, &nodes, trig, i, k),
+                        None => trapezoid(view, brdf, trig, i, k, boundary_ppd, boundary_min),
+                    }
                 } else {
                     match method {
                         Method::Exact(form) => {

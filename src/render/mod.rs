@@ -194,6 +194,13 @@ fn check_settings(s: &Settings) -> Result<(), RenderError> {
         }
         _ => {}
     }
+    if s.boundary_nodes == 0 || s.boundary_nodes > 32 {
+        return bad(
+            "boundary_nodes",
+            s.boundary_nodes.to_string(),
+            "an integer in [1, 32]",
+        );
+    }
     if s.supersampling == 0 || s.supersampling > 16 {
         return bad(
             "supersampling",
@@ -312,6 +319,7 @@ fn render_in_pool(
             &buf.keep,
             &scene.body.brdf,
             method,
+            settings.boundary_nodes as usize,
             a_sun,
             a_cam,
             &mut buf.pl,

@@ -66,6 +66,9 @@ pub struct Settings {
     pub sampling: Sampling,
     pub split: Split,
     pub integration: Integration,
+    /// Gauss-Legendre nodes per dimension (and per piece) on quadrangles that straddle the
+    /// limb or the terminator, integrated over their exact lit and visible part.
+    pub boundary_nodes: u32,
     pub fov: FovShape,
     pub gridding: Gridding,
     /// Super-sampling factor (1 = off): gridding runs on a grid this many times finer.
@@ -92,6 +95,7 @@ impl Default for Settings {
             integration: Integration::Auto {
                 points_per_deg: 5.0,
             },
+            boundary_nodes: 4,
             fov: FovShape::Frustum,
             gridding: Gridding::Polygon,
             supersampling: 1,
@@ -109,6 +113,7 @@ impl Settings {
     pub fn high_accuracy() -> Self {
         Settings {
             points: PointBudget::PerPixel(4.0),
+            boundary_nodes: 6,
             ..Settings::default()
         }
     }

@@ -28,8 +28,9 @@ enum Command {
     },
     /// Render every pose of a trajectory and report frame times.
     Bench {
-        /// Pose stream, CSV or JSON lines (../shared/trajectories/).
-        trajectory: PathBuf,
+        /// Pose stream, CSV or JSON lines (../shared/trajectories/); without it, the scene's
+        /// own pose is rendered `--frames` times (default 20).
+        trajectory: Option<PathBuf>,
         /// Scene TOML for the body, Sun spectrum and camera (default: embedded Lambert Moon,
         /// NRHO camera).
         #[arg(long)]
@@ -84,7 +85,7 @@ fn run() -> anyhow::Result<()> {
                 )),
                 None => None,
             };
-            let report = app::bench::run(&cfg, &trajectory, frames, |row| {
+            let report = app::bench::run(&cfg, trajectory.as_deref(), frames, |row| {
                 if let Some(w) = sink.as_mut() {
                     use std::io::Write;
                     let _ = writeln!(w, "{}", serde_json::to_string(row).unwrap_or_default());

@@ -109,18 +109,18 @@ fn exact_total(cfg: &optistim::config::Config) -> f64 {
     k * s
 }
 
-fn check(render: &str, median_max: f64, total_max: f64) {
+/// (median per-pixel error over inside pixels, total error): measures one `[render]` text.
+fn measure(render: &str, reference: &[f64], inside: &[bool]) -> (f64, f64) {
     let cfg = scene(render);
     let mut renderer = Renderer::new(0).unwrap();
     let frame = renderer
         .render(&cfg.scene, &cfg.pose, &cfg.settings)
         .unwrap();
-    let (reference, inside) = reference(&cfg);
     let mut errs: Vec<f64> = frame
         .pl
         .iter()
-        .zip(&reference)
-        .zip(&inside)
+        .zip(reference)
+        .zip(inside)
         .filter(|(_, ins)| **ins)
         .map(|((a, b), _)| (a / b - 1.0).abs())
         .collect();
@@ -143,6 +143,12 @@ fn check(render: &str, median_max: f64, total_max: f64) {
         frame.stats.points_kept,
         frame.stats.timings_ms.total
     );
+    (median, total_err)
+}
+
+fn check(render: &str, median_max: f64, total_max: f64) {
+    let (reference, inside) = reference(&scene(""));
+    let (median, total_err) = measure(render, &reference, &inside);
     assert!(median < median_max, "median {median:e} >= {median_max:e}");
     assert!(
         total_err < total_max,
@@ -158,4 +164,17 @@ fn default_settings_meet_1e_3_median_and_2e_5_total() {
 #[test]
 fn high_accuracy_meets_5e_5_median_and_1e_5_total() {
     check("preset = \"high_accuracy\"", 5e-5, 1e-5);
+}
+
+/// An accuracy/speed sweep, not a check: `OPTISTIM_SWEEP='points_per_pixel = 1;gridding =
+/// "polygon_linear"' cargo test --release --test analytic sweep -- --ignored --nocapture`
+/// (`;` separates render settings, `|` separates cases).
+#[test]
+#[ignore]
+fn sweep() {
+    let cases = std::env::var("OPTISTIM_SWEEP").unwrap_or_default();
+    let (reference, inside) = reference(&scene(""));
+    for case in cases.split('|') {
+        measure(&case.replace(';', "\n"), &reference, &inside);
+    }
 }

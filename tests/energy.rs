@@ -44,6 +44,7 @@ fn check(distortion: &str, label: &str) {
             sigma_px: 1.3,
         },
         Gridding::Polygon,
+        Gridding::PolygonLinear,
     ];
     let filters = [
         Reconstruction::Box,
@@ -86,7 +87,7 @@ fn check(distortion: &str, label: &str) {
             }
         }
     }
-    assert_eq!(cases, 5 * 2 * (1 + 2 * 4));
+    assert_eq!(cases, 6 * 2 * (1 + 2 * 4));
 }
 
 #[test]

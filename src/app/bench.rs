@@ -1,5 +1,6 @@
-//! `optistim bench TRAJECTORY`: renders every pose of a stream (render + detector, no file
-//! output) and reports per-frame time statistics.
+//! `optistim bench [TRAJECTORY]`: renders every pose of a stream (render + detector, no file
+//! output) and reports per-frame time statistics. Without a trajectory it renders the scene's
+//! own pose repeatedly: the first frame (cold buffers) and the steady state are both reported.
 
 use super::AppError;
 use crate::config::Config;
@@ -16,6 +17,8 @@ pub const DEFAULT_SCENE: &str = include_str!("../../config/nrho_bench.toml");
 pub struct BenchReport {
     pub trajectory: String,
     pub frames: usize,
+    /// The first frame's time [ms] (buffers allocated and first touched).
+    pub first_ms: f64,
     pub threads: usize,
     pub median_ms: f64,
     pub p95_ms: f64,
@@ -39,14 +42,28 @@ pub struct FrameRow {
     pub covered_px: f64,
 }
 
-/// Renders up to `max_frames` poses of `trajectory` with `config`'s scene and settings.
+/// Renders up to `max_frames` poses of `trajectory` (default: the scene's own pose, 20 times)
+/// with `config`'s scene and settings.
 pub fn run(
     config: &Config,
-    trajectory: &Path,
+    trajectory: Option<&Path>,
     max_frames: Option<usize>,
     mut per_frame: impl FnMut(&FrameRow),
 ) -> Result<BenchReport, AppError> {
-    let poses = crate::trajectory::read(trajectory)?;
+    let (poses, label) = match trajectory {
+        Some(t) => (crate::trajectory::read(t)?, t.display().to_string()),
+        None => {
+            let n = max_frames.unwrap_or(20);
+            let poses = (0..n)
+                .map(|i| {
+                    let mut p = config.pose.clone();
+                    p.frame_id = i as u64;
+                    (0.0, p)
+                })
+                .collect();
+            (poses, "<the scene's pose>".to_string())
+        }
+    };
     let n = max_frames.unwrap_or(usize::MAX).min(poses.len());
     let mut renderer = Renderer::new(config.settings.threads)?;
     let det = &config.scene.camera.detector;
@@ -95,8 +112,9 @@ pub fn run(
         .iter()
         .fold((0.0, 0), |a, &t| if t.0 > a.0 { t } else { a });
     Ok(BenchReport {
-        trajectory: trajectory.display().to_string(),
+        trajectory: label,
         frames: n,
+        first_ms: times.first().map_or(0.0, |t| t.0),
         threads: renderer.threads(),
         median_ms: q(0.5),
         p95_ms: q(0.95),

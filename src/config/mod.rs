@@ -524,6 +524,12 @@ impl Validator<'_> {
                 _ => Split::Aspect,
             };
         }
+        if let Some(n) = r.min_points {
+            if !(1..=1_000_000).contains(&n) {
+                return self.err("render.min_points", n, "an integer in [1, 1000000]");
+            }
+            s.min_points = n as usize;
+        }
         if let Some(n) = r.boundary_nodes {
             if !(1..=32).contains(&n) {
                 return self.err("render.boundary_nodes", n, "an integer in [1, 32]");
@@ -571,9 +577,10 @@ impl Validator<'_> {
             s.gridding = match self.choice(
                 "render.gridding",
                 v,
-                &["polygon", "nearest", "area", "gaussian"],
+                &["polygon", "polygon_linear", "nearest", "area", "gaussian"],
             )? {
                 "nearest" => Gridding::Nearest,
+                "polygon_linear" => Gridding::PolygonLinear,
                 "area" => Gridding::Area,
                 "gaussian" => {
                     let window = r.gaussian_window_px.unwrap_or(3);

@@ -148,6 +148,7 @@ pub struct RawRender {
     pub integration: Option<String>,
     pub trapezoid_points_per_deg: Option<f64>,
     pub boundary_nodes: Option<i64>,
+    pub min_points: Option<i64>,
     pub fov: Option<String>,
     pub gridding: Option<String>,
     pub gaussian_window_px: Option<i64>,

@@ -35,6 +35,8 @@ pub fn write_png_gray(
     })?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
     enc.set_color(png::ColorType::Grayscale);
+    // Fast deflate: these images are written per frame; size matters less than time.
+    enc.set_compression(png::Compression::Fast);
     let data: Vec<u8> = if bit_depth <= 8 {
         enc.set_depth(png::BitDepth::Eight);
         dn.iter().map(|&x| x.min(255) as u8).collect()

@@ -22,9 +22,9 @@ pub mod settings;
 pub mod view;
 
 use crate::scene::{Pose, Scene};
-use gridding::{Accum, Gridding};
+use gridding::{Accum, Gridding, Slope};
 use integration::Method;
-use pruning::PRUNED;
+use pruning::{INTERIOR, PRUNED};
 use rayon::prelude::*;
 use sampling::GridTrig;
 use serde::Serialize;
@@ -110,6 +110,10 @@ struct Buffers {
     verts: Vec<[f64; 2]>,
     scratch: Vec<Vec<i64>>,
     fixed: Vec<i64>,
+    /// Per-quadrangle footprint centroid [px] and density [(P/L)/px^2] (NaN: not usable).
+    centroid: Vec<[f64; 2]>,
+    density: Vec<f64>,
+    slopes: Vec<Slope>,
 }
 
 /// Owns the worker threads and buffers; render many frames with one.
@@ -392,7 +396,94 @@ fn render_in_pool(
     })
 }
 
-/// The gridding step: latitude rows are split into one contiguous block per thread; each block
+/// The density slopes of [`Gridding::PolygonLinear`]: for each interior quadrangle, the
+/// least-squares gradient of the footprint density against its four grid neighbours' (those
+/// that are interior too), limited so that the density stays non-negative at every corner of
+/// the footprint (hence over it: it is convex and the density linear). Boundary quadrangles,
+/// whose density is not a smooth field's, get none.
+fn fit_slopes(trig: &GridTrig, buf: &mut Buffers) {
+    let (nl, nk) = (trig.n_lon(), trig.n_lat());
+    let n = nl * nk;
+    let (keep, pl, verts) = (&buf.keep, &buf.pl, &buf.verts);
+    let corners = |i: usize, k: usize| {
+        let v = |a: usize, c: usize| verts[c * (nl + 1) + a];
+        [v(i, k), v(i + 1, k), v(i + 1, k + 1), v(i, k + 1)]
+    };
+    buf.centroid.resize(n, [0.0; 2]);
+    buf.density.resize(n, f64::NAN);
+    buf.centroid
+        .par_chunks_mut(nl)
+        .zip(buf.density.par_chunks_mut(nl))
+        .enumerate()
+        .for_each(|(k, (cen, den))| {
+            for i in 0..nl {
+                let j = k * nl + i;
+                den[i] = f64::NAN;
+                if keep[j] == INTERIOR && pl[j] > 0.0 {
+                    if let Some((c, a)) = gridding::centroid_area(&corners(i, k)) {
+                        cen[i] = c;
+                        den[i] = pl[j] / a;
+                    }
+                }
+            }
+        });
+    let (cen, den) = (&buf.centroid, &buf.density);
+    buf.slopes.resize(n, Slope::default());
+    buf.slopes
+        .par_chunks_mut(nl)
+        .enumerate()
+        .for_each(|(k, row)| {
+            for (i, out) in row.iter_mut().enumerate() {
+                let j = k * nl + i;
+                *out = Slope {
+                    centroid: cen[j],
+                    grad: [0.0; 2],
+                };
+                let d0 = den[j];
+                if !d0.is_finite() {
+                    continue;
+                }
+                let (mut sxx, mut sxy, mut syy, mut bx, mut by) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                let neighbours = [
+                    (i > 0).then(|| j - 1),
+                    (i + 1 < nl).then(|| j + 1),
+                    (k > 0).then(|| j - nl),
+                    (k + 1 < nk).then(|| j + nl),
+                ];
+                for nb in neighbours.into_iter().flatten() {
+                    if !den[nb].is_finite() {
+                        continue;
+                    }
+                    let (dx, dy) = (cen[nb][0] - cen[j][0], cen[nb][1] - cen[j][1]);
+                    let dd = den[nb] - d0;
+                    sxx += dx * dx;
+                    sxy += dx * dy;
+                    syy += dy * dy;
+                    bx += dx * dd;
+                    by += dy * dd;
+                }
+                let det = sxx * syy - sxy * sxy;
+                if !(det > 1e-9 * (sxx + syy) * (sxx + syy)) {
+                    continue;
+                }
+                let mut g = [(syy * bx - sxy * by) / det, (sxx * by - sxy * bx) / det];
+                // Positivity limiter: the density at the lowest corner must not go below zero.
+                let low = corners(i, k)
+                    .iter()
+                    .map(|c| g[0] * (c[0] - cen[j][0]) + g[1] * (c[1] - cen[j][1]))
+                    .fold(0.0f64, f64::min);
+                if d0 + low < 0.0 {
+                    let f = d0 / -low;
+                    g = [g[0] * f, g[1] * f];
+                }
+                if g[0].is_finite() && g[1].is_finite() {
+                    out.grad = g;
+                }
+            }
+        });
+}
+
+/// The gridding step: latitude rows are split into contiguous blocks; each block
 /// accumulates in fixed point into its own window (the bounding box of its footprints), and
 /// the windows are summed as integers, so the result does not depend on the split.
 fn grid(
@@ -412,18 +503,43 @@ fn grid(
     // contribution is at most 2^-61 of the total.
     let scale = (1u64 << 60) as f64 / total;
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
-    let blocks = threads.max(1).min(nk);
+    // Blocks of latitude rows with about equal numbers of kept quadrangles, a few per thread
+    // so that rayon can balance them (the FOV often keeps far more of one half than the
+    // other). The split depends on the thread count, the sum of the blocks does not.
+    let blocks = (4 * threads.max(1)).min(nk);
+    let row_kept: Vec<usize> = buf
+        .keep
+        .par_chunks(nl)
+        .map(|r| r.iter().filter(|&&c| c != PRUNED).count())
+        .collect();
+    let kept_total: usize = row_kept.iter().sum();
+    let mut bounds = Vec::with_capacity(blocks + 1);
+    bounds.push(0usize);
+    let mut acc_rows = 0usize;
+    for (k, n) in row_kept.iter().enumerate() {
+        acc_rows += n;
+        if bounds.len() < blocks && acc_rows * blocks >= kept_total * bounds.len() && k + 1 < nk {
+            bounds.push(k + 1);
+        }
+    }
+    bounds.push(nk);
+    let blocks = bounds.len() - 1;
     buf.scratch.resize_with(blocks, Vec::new);
     let reach = kernel.reach_px();
     let corners_needed = kernel.needs_corners();
+    let linear = kernel == Gridding::PolygonLinear;
+    if linear {
+        fit_slopes(trig, buf);
+    }
     let (keep, pl, mids, verts) = (&buf.keep, &buf.pl, &buf.mids, &buf.verts);
+    let slopes = &buf.slopes;
     let nan4 = [[f64::NAN; 2]; 4];
     let windows: Vec<Option<(i64, i64, i64, i64)>> = buf
         .scratch
         .par_iter_mut()
         .enumerate()
         .map(|(b, scratch)| {
-            let (k0, k1) = (b * nk / blocks, (b + 1) * nk / blocks);
+            let (k0, k1) = (bounds[b], bounds[b + 1]);
             // Bounding box of this block's footprints.
             let (mut x0, mut y0, mut x1, mut y1) = (
                 f64::INFINITY,
@@ -488,7 +604,8 @@ fn grid(
                     };
                     let mid = mids[j];
                     if mid[0].is_finite() || corners_needed {
-                        kernel.splat(&corners, mid, pl[j], &mut acc);
+                        let slope = if linear { Some(&slopes[j]) } else { None };
+                        kernel.splat(&corners, mid, pl[j], slope, &mut acc);
                     }
                 }
             }

@@ -158,6 +158,7 @@ pub fn plan(view: &View, bounds: &Bounds, settings: &Settings) -> Result<Plan, T
             PointBudget::Total(n) => n as f64,
             PointBudget::PerPixel(p) => p * covered_px.max(1.0),
         }
+        .max(settings.min_points as f64)
         .max(1.0);
         let kept_frac = kept as f64 / (PILOT * PILOT) as f64;
         match settings.split {

@@ -10,6 +10,8 @@ mod gaussian;
 mod nearest;
 mod polygon;
 
+pub use polygon::{Slope, centroid_area};
+
 use serde::Serialize;
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -27,13 +29,18 @@ pub enum Gridding {
     /// covers. Neighbouring quadrangles share corners, so their polygons tile the image with
     /// no gap or overlap: no aliasing at any density.
     Polygon,
+    /// [`Gridding::Polygon`] with a linear density over each footprint: the density gradient
+    /// is fitted (least squares) to the neighbouring quadrangles' densities and limited so the
+    /// density stays non-negative over the footprint. Second-order accurate, still exactly
+    /// energy-conserving.
+    PolygonLinear,
 }
 
 impl Gridding {
     /// How far beyond a point's pixel (or its quadrangle's corners) the kernel reaches [px].
     pub fn reach_px(&self) -> i64 {
         match self {
-            Gridding::Nearest | Gridding::Polygon => 1,
+            Gridding::Nearest | Gridding::Polygon | Gridding::PolygonLinear => 1,
             Gridding::Area => 2,
             Gridding::Gaussian { window_px, .. } => (*window_px as i64) / 2 + 1,
         }
@@ -41,13 +48,20 @@ impl Gridding {
 
     /// Whether the kernel uses the quadrangle corners.
     pub fn needs_corners(&self) -> bool {
-        matches!(self, Gridding::Polygon)
+        matches!(self, Gridding::Polygon | Gridding::PolygonLinear)
     }
 
     /// Grids one quadrangle: `corners` in order around the quadrangle (NaN when a corner could
     /// not be projected), `mid` its projected midpoint, `value` its (P/L).
     #[inline]
-    pub fn splat(&self, corners: &[[f64; 2]; 4], mid: [f64; 2], value: f64, acc: &mut Accum) {
+    pub fn splat(
+        &self,
+        corners: &[[f64; 2]; 4],
+        mid: [f64; 2],
+        value: f64,
+        slope: Option<&Slope>,
+        acc: &mut Accum,
+    ) {
         match self {
             Gridding::Nearest => nearest::splat(mid, value, acc),
             Gridding::Area => area::splat(mid, value, acc),
@@ -55,8 +69,8 @@ impl Gridding {
                 window_px,
                 sigma_px,
             } => gaussian::splat(mid, value, *window_px, *sigma_px, acc),
-            Gridding::Polygon => {
-                if !polygon::splat(corners, value, acc) {
+            Gridding::Polygon | Gridding::PolygonLinear => {
+                if !polygon::splat_linear(corners, value, slope, acc) {
                     area::splat(mid, value, acc);
                 }
             }

@@ -2,6 +2,12 @@
 //! (Sutherland-Hodgman against the pixel's four edges) and each pixel gets `value` times the
 //! fraction of the quadrangle's area inside it.
 //!
+//! With a [`Slope`], the value is spread with a *linear* density over the footprint
+//! (second-order conservative remapping): the density is `value/area + g . (x - centroid)`, so
+//! each pixel gets `value * area_f/area + g . (M_f - centroid area_f)` with `M_f` the first
+//! moment of its fragment. The fragments' first moments sum to `centroid * area`, so the
+//! gradient term moves energy between pixels but never creates or loses any.
+//!
 //! Returns `false` (and grids nothing) when the footprint is not a usable polygon: a corner
 //! could not be projected, the quadrangle folds over itself (at the limb), it is degenerate,
 //! or it spans more than `MAX_SPAN_PX` pixels. The caller then falls back to a point kernel.
@@ -9,8 +15,8 @@
 use super::Accum;
 
 const MAX_SPAN_PX: i64 = 64;
-/// A quadrangle clipped by two pairs of parallel lines has at most 8 vertices.
-const MAX_VERTS: usize = 10;
+/// A convex quadrangle cut by two pairs of parallel lines keeps at most 8 vertices.
+const MAX_VERTS: usize = 8;
 
 type Poly = ([[f64; 2]; MAX_VERTS], usize);
 
@@ -31,38 +37,85 @@ fn area(p: &Poly) -> f64 {
     0.5 * s
 }
 
-/// Keeps the part of `p` where `sign * (coord[axis] - at) <= 0`.
+/// Signed area and first moments `(int x dA, int y dA)` of a polygon (same orientation sign).
 #[inline]
-fn clip(p: &Poly, axis: usize, at: f64, sign: f64) -> Poly {
-    let mut out = ([[0.0; 2]; MAX_VERTS], 0usize);
+fn area_moments(p: &Poly) -> (f64, f64, f64) {
+    let (v, n) = (&p.0, p.1);
+    let (mut a, mut mx, mut my) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let j = if i + 1 == n { 0 } else { i + 1 };
+        let c = v[i][0] * v[j][1] - v[j][0] * v[i][1];
+        a += c;
+        mx += (v[i][0] + v[j][0]) * c;
+        my += (v[i][1] + v[j][1]) * c;
+    }
+    (0.5 * a, mx / 6.0, my / 6.0)
+}
+
+/// Centroid `[u, v]` and unsigned area [px^2] of a quadrangle footprint (`None` if degenerate).
+#[inline]
+pub fn centroid_area(c: &[[f64; 2]; 4]) -> Option<([f64; 2], f64)> {
+    let (mut a, mut mx, mut my) = (0.0, 0.0, 0.0);
+    for i in 0..4 {
+        let (p, q) = (c[i], c[(i + 1) & 3]);
+        let x = p[0] * q[1] - q[0] * p[1];
+        a += x;
+        mx += (p[0] + q[0]) * x;
+        my += (p[1] + q[1]) * x;
+    }
+    (a.is_finite() && a.abs() > 1e-300).then(|| ([mx / (3.0 * a), my / (3.0 * a)], 0.5 * a.abs()))
+}
+
+/// A linear density over a footprint: gradient `grad` [value/px^3] about `centroid` [px].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Slope {
+    pub centroid: [f64; 2],
+    pub grad: [f64; 2],
+}
+
+/// Splits `p` along `coord[axis] = at` into the parts below and above (one pass).
+#[inline(always)]
+fn split(p: &Poly, axis: usize, at: f64) -> (Poly, Poly) {
+    let mut lo = ([[0.0; 2]; MAX_VERTS], 0usize);
+    let mut hi = ([[0.0; 2]; MAX_VERTS], 0usize);
     let (v, n) = (&p.0, p.1);
     if n == 0 {
-        return out;
+        return (lo, hi);
     }
+    let push = |q: &mut Poly, x: [f64; 2]| {
+        if q.1 < MAX_VERTS {
+            q.0[q.1] = x;
+            q.1 += 1;
+        }
+    };
     let mut prev = v[n - 1];
-    let mut prev_in = sign * (prev[axis] - at) <= 0.0;
+    let mut prev_lo = prev[axis] <= at;
     for &cur in v.iter().take(n) {
-        let cur_in = sign * (cur[axis] - at) <= 0.0;
-        if cur_in != prev_in && out.1 < MAX_VERTS {
+        let cur_lo = cur[axis] <= at;
+        if cur_lo != prev_lo {
             let t = (at - prev[axis]) / (cur[axis] - prev[axis]);
-            out.0[out.1] = [
+            let mut x = [
                 prev[0] + t * (cur[0] - prev[0]),
                 prev[1] + t * (cur[1] - prev[1]),
             ];
-            out.1 += 1;
+            x[axis] = at;
+            push(&mut lo, x);
+            push(&mut hi, x);
         }
-        if cur_in && out.1 < MAX_VERTS {
-            out.0[out.1] = cur;
-            out.1 += 1;
+        if cur_lo {
+            push(&mut lo, cur);
+        } else {
+            push(&mut hi, cur);
         }
         prev = cur;
-        prev_in = cur_in;
+        prev_lo = cur_lo;
     }
-    out
+    (lo, hi)
 }
 
+/// Grids `value` over the footprint `c` with the linear density of `slope` (uniform if `None`).
 #[inline]
-pub fn splat(c: &[[f64; 2]; 4], value: f64, acc: &mut Accum) -> bool {
+pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &mut Accum) -> bool {
     if c.iter().any(|p| !(p[0].is_finite() && p[1].is_finite())) {
         return false;
     }
@@ -105,23 +158,45 @@ pub fn splat(c: &[[f64; 2]; 4], value: f64, acc: &mut Accum) -> bool {
         return false;
     }
     let k = value / total;
+    // Fragment value: uniform part plus the gradient's first-moment part. Orientation: `total`
+    // and every fragment's area and moments carry the same sign, hence `/ sign`.
+    let sign = total.signum();
+    let frag = |p: &Poly| -> f64 {
+        match slope {
+            None => area(p) * k,
+            Some(s) => {
+                let (a, mx, my) = area_moments(p);
+                (a * k
+                    + (s.grad[0] * (mx - s.centroid[0] * a) + s.grad[1] * (my - s.centroid[1] * a))
+                        * sign)
+                    .max(0.0)
+            }
+        }
+    };
+    // Peel off one pixel column at a time, then one pixel row at a time from each column.
+    let mut rest = quad;
     for i in i0..=i1 {
-        let col = if i0 == i1 {
-            quad
+        let col = if i < i1 {
+            let (col, r) = split(&rest, 0, (i + 1) as f64);
+            rest = r;
+            col
         } else {
-            clip(&clip(&quad, 0, i as f64, -1.0), 0, (i + 1) as f64, 1.0)
+            rest
         };
         if col.1 < 3 {
             continue;
         }
-        if j0 == j1 {
-            acc.add(i, j0, area(&col) * k);
-            continue;
-        }
+        let mut rest_col = col;
         for j in j0..=j1 {
-            let cell = clip(&clip(&col, 1, j as f64, -1.0), 1, (j + 1) as f64, 1.0);
+            let cell = if j < j1 {
+                let (cell, r) = split(&rest_col, 1, (j + 1) as f64);
+                rest_col = r;
+                cell
+            } else {
+                rest_col
+            };
             if cell.1 >= 3 {
-                acc.add(i, j, area(&cell) * k);
+                acc.add(i, j, frag(&cell));
             }
         }
     }
@@ -143,7 +218,7 @@ mod tests {
             h: 4,
             scale,
         };
-        assert!(splat(&c, 1.0, &mut acc));
+        assert!(splat_linear(&c, 1.0, None, &mut acc));
         data.iter().map(|&x| x as f64 / scale).collect()
     }
 
@@ -168,6 +243,41 @@ mod tests {
     }
 
     #[test]
+    fn a_linear_slope_moves_energy_but_conserves_it() {
+        let c = [[0.5, 0.5], [2.5, 0.5], [2.5, 1.5], [0.5, 1.5]];
+        let (cen, a) = centroid_area(&c).unwrap();
+        assert!(
+            (cen[0] - 1.5).abs() < 1e-12 && (cen[1] - 1.0).abs() < 1e-12 && (a - 2.0).abs() < 1e-12
+        );
+        // Density 0.5 + 0.2 (u - 1.5): positive over the footprint.
+        let slope = Slope {
+            centroid: cen,
+            grad: [0.2, 0.0],
+        };
+        let mut data = vec![0i64; 16];
+        let scale = (1u64 << 40) as f64;
+        let mut acc = Accum {
+            data: &mut data,
+            x0: 0,
+            y0: 0,
+            w: 4,
+            h: 4,
+            scale,
+        };
+        assert!(splat_linear(&c, 1.0, Some(&slope), &mut acc));
+        let g: Vec<f64> = data.iter().map(|&x| x as f64 / scale).collect();
+        assert!((g.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+        // Pixel column 0 covers u in [0.5, 1]: integral of the density over [0.5,1]x[0.5,1].
+        let exact = |u0: f64, u1: f64, v0: f64, v1: f64| {
+            let f = |u: f64| 0.5 * u + 0.1 * (u - 1.5).powi(2);
+            (f(u1) - f(u0)) * (v1 - v0)
+        };
+        assert!((g[0] - exact(0.5, 1.0, 0.5, 1.0)).abs() < 1e-9, "{}", g[0]);
+        assert!((g[1] - exact(1.0, 2.0, 0.5, 1.0)).abs() < 1e-9, "{}", g[1]);
+        assert!((g[2] - exact(2.0, 2.5, 0.5, 1.0)).abs() < 1e-9, "{}", g[2]);
+    }
+
+    #[test]
     fn a_folded_quad_is_refused() {
         let mut data = vec![0i64; 16];
         let mut acc = Accum {
@@ -178,9 +288,10 @@ mod tests {
             h: 4,
             scale: 1.0,
         };
-        assert!(!splat(
+        assert!(!splat_linear(
             &[[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]],
             1.0,
+            None,
             &mut acc
         ));
     }

@@ -53,13 +53,15 @@ impl Detector {
             .enumerate()
             .for_each(|(chunk, out)| {
                 let base = chunk * 4096;
+                // One generator per stream for each fixed block of 4096 pixels (the fixed
+                // patterns' independent of the frame, the temporal noises' seeded by it); draws
+                // are taken in pixel order, so a pixel gets the same draws whatever the thread
+                // count. Seeding per block rather than per pixel: seeding cost most of the time.
+                let c = chunk as u64;
+                let mut fixed_rng = fixed.then(|| rng(seed, Stream::Fixed, None, c));
+                let mut temporal_rng =
+                    temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), c));
                 for (k, dn) in out.iter_mut().enumerate() {
-                    let p = (base + k) as u64;
-                    // One generator per pixel for the fixed patterns, one per pixel and frame for
-                    // the temporal noises; draws are taken in a fixed order.
-                    let mut fixed_rng = fixed.then(|| rng(seed, Stream::Fixed, None, p));
-                    let mut temporal_rng =
-                        temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), p));
                     let mut s = signal_e_per_s[base + k];
                     if let (Some(prnu), Some(r)) = (&noise.prnu, fixed_rng.as_mut()) {
                         s *= prnu.gain(r);

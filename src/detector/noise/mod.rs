@@ -1,5 +1,5 @@
 //! Detector noises (paper Sec. 4.9, Fig. 21), one file per model. Every draw comes from a
-//! generator seeded by `(seed, noise, frame, pixel)`, so a frame does not depend on thread
+//! generator seeded by `(seed, noise, frame, block of 4096 pixels)` and drawn in pixel order, so a frame does not depend on thread
 //! scheduling and fixed-pattern noises (PRNU, dark-signal non-uniformity) stay put from frame
 //! to frame (their seed omits the frame).
 
@@ -49,12 +49,13 @@ fn mix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// A generator for one `(seed, stream, frame, pixel)`; `frame = None` for fixed patterns.
+/// A generator for one `(seed, stream, frame, block)` (`block`: a fixed run of pixels);
+/// `frame = None` for fixed patterns.
 #[inline]
-pub fn rng(seed: u64, stream: Stream, frame: Option<u64>, pixel: u64) -> Pcg64Mcg {
+pub fn rng(seed: u64, stream: Stream, frame: Option<u64>, block: u64) -> Pcg64Mcg {
     let f = frame.map_or(0x9e37_79b9_7f4a_7c15, |f| {
         mix(f.wrapping_add(0x632b_e59b_d9b4_e019))
     });
     let s = mix(seed ^ mix(stream as u64) ^ f);
-    Pcg64Mcg::seed_from_u64(mix(s ^ pixel.wrapping_mul(0xd1b5_4a32_d192_ed03)))
+    Pcg64Mcg::seed_from_u64(mix(s ^ block.wrapping_mul(0xd1b5_4a32_d192_ed03)))
 }

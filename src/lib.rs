@@ -15,6 +15,7 @@
 //! | [`detector`] | (P/L) -> signal -> electrons with noises -> DN (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
+//! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts), dithering |
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs |
@@ -32,9 +33,12 @@
 //!   detector: S = (P/L)·∫QE·T·λ/(hc)·L_e dλ  → electrons (+noise) → DN
 //!                                        │
 //!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
+//!                                        │ signal [e-/s]
+//!   stimulator: F_eff = k·S (Eq. 60) → calibration⁻¹ (+ dither) → screen DN   (issue 4: in progress)
 //! ```
 //!
-//! Rules: nothing below `app` knows about files except `config`, `trajectory` and `io`; the
+//! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the
+//! calibration loader; the
 //! renderer is a pure function of (scene, pose, settings) and never panics on input.
 
 pub mod app;
@@ -48,4 +52,5 @@ pub mod io;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
+pub mod stimulator;
 pub mod trajectory;

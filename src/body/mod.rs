@@ -9,7 +9,7 @@ pub mod sphere;
 
 use crate::brdf::Brdf;
 use glam::DVec3;
-pub use sphere::Sphere;
+pub use sphere::{LitVisible, Sphere};
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum Shape {
@@ -44,6 +44,15 @@ impl Shape {
     pub fn intersect(&self, origin: DVec3, dir: DVec3) -> Option<f64> {
         match self {
             Shape::Sphere(s) => crate::geometry::ray_sphere(origin, dir, s.radius_m),
+        }
+    }
+
+    /// The exactly known lit and visible region in longitude and latitude, for a Sun at
+    /// `sun_m` on +X and a camera at `camera_m` in the XY plane (CSF); `None` for shapes
+    /// without one (the integrator then clamps a trapezoidal rule instead).
+    pub fn lit_visible(&self, sun_m: DVec3, camera_m: DVec3) -> Option<LitVisible> {
+        match self {
+            Shape::Sphere(s) => Some(LitVisible::new(s.radius_m, sun_m, camera_m)),
         }
     }
 

@@ -114,13 +114,6 @@ impl Brdf {
         }
     }
 
-    /// Whether `f_r cos(theta_i)` jumps to zero at the terminator instead of falling to it
-    /// continuously (the Area model's radiance is constant up to the terminator). Integrators
-    /// need more samples on quadrangles that straddle such a step.
-    pub fn steps_at_terminator(&self) -> bool {
-        matches!(self, Brdf::Area(_))
-    }
-
     /// The scale parameter (`rho`, or `w` for Lommel-Seeliger).
     pub fn scale(&self) -> f64 {
         match self {

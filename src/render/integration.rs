@@ -18,7 +18,7 @@
 //!
 //! Quadrangles that straddle the limb or the terminator (see [`super::pruning`]) are integrated
 //! over their lit and visible part only, which no closed form can do. On a sphere that part is
-//! known exactly ([`SphereClip`]): at latitude `lat` a point is lit when
+//! known exactly ([`LitVisible`]): at latitude `lat` a point is lit when
 //! `cos(lat) cos(lon) > R/d_sun` and visible when `cos(lat) cos(lon - alpha) > R/d_cam` (Eqs.
 //! 29 and 31 with the finite distances), so each Gauss-Legendre latitude node gets its exact
 //! longitude interval and a Gauss-Legendre rule over it. The latitude range is split where the
@@ -31,94 +31,15 @@ use super::pruning::{BOUNDARY, PRUNED};
 use super::sampling::GridTrig;
 use super::settings::Integration;
 use super::view::View;
+use crate::body::LitVisible;
 use crate::brdf::{Brdf, ExactForm, Local};
 use glam::DVec3;
 use rayon::prelude::*;
 
 /// Trapezoid points per side, at least, on boundary quadrangles of shapes without an exact
-/// clip: the clamped integrand has a kink there (a step for the Area model), so the rule
-/// converges only as 1/n on them.
+/// lit-and-visible region ([`crate::body::Shape::lit_visible`]): the clamped integrand has a
+/// kink there (a step for the Area model), so the rule converges only as 1/n on them.
 const BOUNDARY_MIN_POINTS: usize = 4;
-/// The same for models whose `f_r cos(theta_i)` steps at the terminator
-/// ([`Brdf::steps_at_terminator`]): the error of
-/// the step is 1/(2n) of a boundary quadrangle's energy.
-const STEP_MIN_POINTS: usize = 32;
-
-/// The lit-and-visible region of a sphere in CSF (Sun on +X, camera at longitude `alpha`).
-#[derive(Clone, Copy, Debug)]
-pub struct SphereClip {
-    /// `R / d_sun`: lit where `cos(lat) cos(lon) > eps_sun`.
-    eps_sun: f64,
-    /// `R / d_cam`: visible where `cos(lat) cos(lon - alpha) > eps_cam`.
-    eps_cam: f64,
-    alpha: f64,
-}
-
-impl SphereClip {
-    /// The clip of `view`, when its shape is a sphere.
-    pub fn new(view: &View) -> Option<Self> {
-        match view.shape {
-            crate::body::Shape::Sphere(s) => {
-                let r = s.radius_m;
-                let (sun, cam) = (view.sun_csf, view.cam_csf);
-                Some(SphereClip {
-                    eps_sun: r / sun.length(),
-                    eps_cam: r / cam.length(),
-                    alpha: cam.y.atan2(cam.x),
-                })
-            }
-        }
-    }
-
-    /// The lit and visible longitude interval at `cos(lat)` within `[p0, p1]` (CSF longitudes
-    /// within (-pi, pi]); `None` when empty.
-    #[inline(always)]
-    fn lon_interval(&self, cos_lat: f64, p0: f64, p1: f64) -> Option<(f64, f64)> {
-        if cos_lat <= self.eps_sun || cos_lat <= self.eps_cam {
-            return None;
-        }
-        let a_s = (self.eps_sun / cos_lat).acos();
-        let a_c = (self.eps_cam / cos_lat).acos();
-        let lo = p0.max(-a_s).max(self.alpha - a_c);
-        let hi = p1.min(a_s).min(self.alpha + a_c);
-        (hi > lo).then_some((lo, hi))
-    }
-
-    /// Latitudes in `(l0, l1)` where an end of the interval switches curves, sorted, into
-    /// `out` (at most 16).
-    fn breaks(&self, p0: f64, p1: f64, l0: f64, l1: f64, out: &mut [f64; 16]) -> usize {
-        let mut n = 0;
-        let mut push = |cos_lat: f64| {
-            if cos_lat > 0.0 && cos_lat < 1.0 {
-                let lat = cos_lat.acos();
-                for l in [lat, -lat] {
-                    if l > l0 && l < l1 && n < out.len() {
-                        out[n] = l;
-                        n += 1;
-                    }
-                }
-            }
-        };
-        // Where an interval end reaches a side of the quadrangle: a = |p| on either curve.
-        for p in [p0, p1] {
-            push(self.eps_sun / p.cos());
-            push(self.eps_cam / (p - self.alpha).cos());
-        }
-        // Where the limb crosses the terminator.
-        let (sa, ca) = self.alpha.sin_cos();
-        if sa.abs() > 1e-12 {
-            let lon = ((self.eps_cam / self.eps_sun - ca) / sa).atan();
-            push(self.eps_sun / lon.cos());
-            let lon2 = lon - std::f64::consts::PI * lon.signum();
-            push(self.eps_sun / lon2.cos());
-        }
-        // Where either interval closes.
-        push(self.eps_sun);
-        push(self.eps_cam);
-        out[..n].sort_by(f64::total_cmp);
-        n
-    }
-}
 
 /// Gauss-Legendre nodes and weights on [0, 1].
 #[derive(Clone, Debug)]
@@ -142,7 +63,7 @@ impl Nodes {
 fn clipped(
     view: &View,
     brdf: &Brdf,
-    clip: &SphereClip,
+    clip: &LitVisible,
     nodes: &Nodes,
     trig: &GridTrig,
     i: usize,
@@ -160,11 +81,7 @@ fn clipped(
     edges[0] = l0;
     edges[1..=nb].copy_from_slice(&cuts[..nb]);
     edges[nb + 1] = l1;
-    let closes = |lat: f64| {
-        let c = lat.cos();
-        let tol = 1e-12;
-        (c - clip.eps_sun).abs() < tol || (c - clip.eps_cam).abs() < tol
-    };
+    let closes = |lat: f64| clip.closes_at(lat.cos());
     let mut total = 0.0;
     for piece in edges[..nb + 2].windows(2) {
         let (a, b) = (piece[0], piece[1]);
@@ -384,7 +301,7 @@ pub fn integrate(
     a_cam_m2: f64,
     pl: &mut Vec<f64>,
 ) -> f64 {
-    let clip = SphereClip::new(view);
+    let clip = view.shape.lit_visible(view.sun_csf, view.cam_csf);
     let nodes = Nodes::new(boundary_nodes.max(1));
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
     let r = view.shape.bounding_radius_m();
@@ -398,11 +315,6 @@ pub fn integrate(
     let boundary_ppd = match method {
         Method::Trapezoidal { points_per_deg } => points_per_deg,
         _ => 5.0,
-    };
-    let boundary_min = if brdf.steps_at_terminator() {
-        STEP_MIN_POINTS
-    } else {
-        BOUNDARY_MIN_POINTS
     };
     pl.clear();
     pl.resize(nl * nk, 0.0);
@@ -421,7 +333,9 @@ pub fn integrate(
                 let f = if class == BOUNDARY {
                     match &clip {
                         Some(c) => clipped(view, brdf, c, &nodes, trig, i, k),
-                        None => trapezoid(view, brdf, trig, i, k, boundary_ppd, boundary_min),
+                        None => {
+                            trapezoid(view, brdf, trig, i, k, boundary_ppd, BOUNDARY_MIN_POINTS)
+                        }
                     }
                 } else {
                     match method {

@@ -110,10 +110,13 @@ struct Buffers {
     verts: Vec<[f64; 2]>,
     scratch: Vec<Vec<i64>>,
     fixed: Vec<i64>,
-    /// Per-quadrangle footprint centroid [px] and density [(P/L)/px^2] (NaN: not usable).
+    /// Kept quadrangles per latitude row (pruning fills it; gridding balances on it).
+    row_kept: Vec<usize>,
+    /// Per-quadrangle footprint centroid [px], density [(P/L)/px^2] (NaN: not usable) and
+    /// density gradient [(P/L)/px^3] (linear-density gridding only).
     centroid: Vec<[f64; 2]>,
     density: Vec<f64>,
-    slopes: Vec<Slope>,
+    grad: Vec<[f64; 2]>,
 }
 
 /// Owns the worker threads and buffers; render many frames with one.
@@ -310,8 +313,8 @@ fn render_in_pool(
         t.sampling = ms(t0);
 
         let t0 = Instant::now();
-        pruning::prune(&view, &trig, &mut buf.keep);
-        stats.points_kept = buf.keep.par_iter().filter(|&&c| c != PRUNED).count();
+        pruning::prune(&view, &trig, &mut buf.keep, &mut buf.row_kept);
+        stats.points_kept = buf.row_kept.iter().sum();
         t.pruning = ms(t0);
 
         let t0 = Instant::now();
@@ -428,17 +431,14 @@ fn fit_slopes(trig: &GridTrig, buf: &mut Buffers) {
             }
         });
     let (cen, den) = (&buf.centroid, &buf.density);
-    buf.slopes.resize(n, Slope::default());
-    buf.slopes
+    buf.grad.resize(n, [0.0; 2]);
+    buf.grad
         .par_chunks_mut(nl)
         .enumerate()
         .for_each(|(k, row)| {
             for (i, out) in row.iter_mut().enumerate() {
                 let j = k * nl + i;
-                *out = Slope {
-                    centroid: cen[j],
-                    grad: [0.0; 2],
-                };
+                *out = [0.0; 2];
                 let d0 = den[j];
                 if !d0.is_finite() {
                     continue;
@@ -477,7 +477,7 @@ fn fit_slopes(trig: &GridTrig, buf: &mut Buffers) {
                     g = [g[0] * f, g[1] * f];
                 }
                 if g[0].is_finite() && g[1].is_finite() {
-                    out.grad = g;
+                    *out = g;
                 }
             }
         });
@@ -507,11 +507,7 @@ fn grid(
     // so that rayon can balance them (the FOV often keeps far more of one half than the
     // other). The split depends on the thread count, the sum of the blocks does not.
     let blocks = (4 * threads.max(1)).min(nk);
-    let row_kept: Vec<usize> = buf
-        .keep
-        .par_chunks(nl)
-        .map(|r| r.iter().filter(|&&c| c != PRUNED).count())
-        .collect();
+    let row_kept = &buf.row_kept;
     let kept_total: usize = row_kept.iter().sum();
     let mut bounds = Vec::with_capacity(blocks + 1);
     bounds.push(0usize);
@@ -532,7 +528,7 @@ fn grid(
         fit_slopes(trig, buf);
     }
     let (keep, pl, mids, verts) = (&buf.keep, &buf.pl, &buf.mids, &buf.verts);
-    let slopes = &buf.slopes;
+    let (centroid, grad) = (&buf.centroid, &buf.grad);
     let nan4 = [[f64::NAN; 2]; 4];
     let windows: Vec<Option<(i64, i64, i64, i64)>> = buf
         .scratch
@@ -604,8 +600,11 @@ fn grid(
                     };
                     let mid = mids[j];
                     if mid[0].is_finite() || corners_needed {
-                        let slope = if linear { Some(&slopes[j]) } else { None };
-                        kernel.splat(&corners, mid, pl[j], slope, &mut acc);
+                        let slope = linear.then(|| Slope {
+                            centroid: centroid[j],
+                            grad: grad[j],
+                        });
+                        kernel.splat(&corners, mid, pl[j], slope.as_ref(), &mut acc);
                     }
                 }
             }

@@ -1,6 +1,6 @@
-//! Exact-footprint gridding: the projected quadrangle is clipped against each pixel it touches
-//! (Sutherland-Hodgman against the pixel's four edges) and each pixel gets `value` times the
-//! fraction of the quadrangle's area inside it.
+//! Exact-footprint gridding: the projected quadrangle is cut along the pixel grid (one pixel
+//! column peeled off at a time, then one pixel row from each column) and each pixel gets
+//! `value` times the fraction of the quadrangle's area inside it.
 //!
 //! With a [`Slope`], the value is spread with a *linear* density over the footprint
 //! (second-order conservative remapping): the density is `value/area + g . (x - centroid)`, so
@@ -25,22 +25,12 @@ fn cross(o: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 }
 
-/// Shoelace area (signed, counter-clockwise positive in a y-up frame).
-#[inline]
-fn area(p: &Poly) -> f64 {
-    let (v, n) = (&p.0, p.1);
-    let mut s = 0.0;
-    for i in 0..n {
-        let j = if i + 1 == n { 0 } else { i + 1 };
-        s += v[i][0] * v[j][1] - v[j][0] * v[i][1];
-    }
-    0.5 * s
-}
-
-/// Signed area and first moments `(int x dA, int y dA)` of a polygon (same orientation sign).
-#[inline]
-fn area_moments(p: &Poly) -> (f64, f64, f64) {
-    let (v, n) = (&p.0, p.1);
+/// Shoelace signed area and first moments `(int x dA, int y dA)` of a polygon (all three carry
+/// the orientation's sign: counter-clockwise positive in a y-up frame). Inlined, so callers
+/// that use only the area pay only for the area.
+#[inline(always)]
+fn area_moments(v: &[[f64; 2]]) -> (f64, f64, f64) {
+    let n = v.len();
     let (mut a, mut mx, mut my) = (0.0, 0.0, 0.0);
     for i in 0..n {
         let j = if i + 1 == n { 0 } else { i + 1 };
@@ -52,18 +42,16 @@ fn area_moments(p: &Poly) -> (f64, f64, f64) {
     (0.5 * a, mx / 6.0, my / 6.0)
 }
 
+#[inline(always)]
+fn verts(p: &Poly) -> &[[f64; 2]] {
+    &p.0[..p.1]
+}
+
 /// Centroid `[u, v]` and unsigned area [px^2] of a quadrangle footprint (`None` if degenerate).
 #[inline]
 pub fn centroid_area(c: &[[f64; 2]; 4]) -> Option<([f64; 2], f64)> {
-    let (mut a, mut mx, mut my) = (0.0, 0.0, 0.0);
-    for i in 0..4 {
-        let (p, q) = (c[i], c[(i + 1) & 3]);
-        let x = p[0] * q[1] - q[0] * p[1];
-        a += x;
-        mx += (p[0] + q[0]) * x;
-        my += (p[1] + q[1]) * x;
-    }
-    (a.is_finite() && a.abs() > 1e-300).then(|| ([mx / (3.0 * a), my / (3.0 * a)], 0.5 * a.abs()))
+    let (a, mx, my) = area_moments(c);
+    (a.is_finite() && a.abs() > 1e-300).then(|| ([mx / a, my / a], a.abs()))
 }
 
 /// A linear density over a footprint: gradient `grad` [value/px^3] about `centroid` [px].
@@ -153,7 +141,7 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
     }
     let mut quad: Poly = ([[0.0; 2]; MAX_VERTS], 4);
     quad.0[..4].copy_from_slice(c);
-    let total = area(&quad);
+    let total = area_moments(c).0;
     if total.abs() < 1e-300 || !total.is_finite() {
         return false;
     }
@@ -163,9 +151,9 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
     let sign = total.signum();
     let frag = |p: &Poly| -> f64 {
         match slope {
-            None => area(p) * k,
+            None => area_moments(verts(p)).0 * k,
             Some(s) => {
-                let (a, mx, my) = area_moments(p);
+                let (a, mx, my) = area_moments(verts(p));
                 (a * k
                     + (s.grad[0] * (mx - s.centroid[0] * a) + s.grad[1] * (my - s.centroid[1] * a))
                         * sign)
@@ -207,7 +195,8 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
 mod tests {
     use super::*;
 
-    fn grid(c: [[f64; 2]; 4]) -> Vec<f64> {
+    /// Grids a unit value over a 4 x 4 pixel grid; `None` when the footprint is refused.
+    fn grid_with(c: [[f64; 2]; 4], slope: Option<&Slope>) -> Option<Vec<f64>> {
         let mut data = vec![0i64; 16];
         let scale = (1u64 << 40) as f64;
         let mut acc = Accum {
@@ -218,8 +207,12 @@ mod tests {
             h: 4,
             scale,
         };
-        assert!(splat_linear(&c, 1.0, None, &mut acc));
-        data.iter().map(|&x| x as f64 / scale).collect()
+        splat_linear(&c, 1.0, slope, &mut acc)
+            .then(|| data.iter().map(|&x| x as f64 / scale).collect())
+    }
+
+    fn grid(c: [[f64; 2]; 4]) -> Vec<f64> {
+        grid_with(c, None).expect("footprint refused")
     }
 
     #[test]
@@ -254,18 +247,7 @@ mod tests {
             centroid: cen,
             grad: [0.2, 0.0],
         };
-        let mut data = vec![0i64; 16];
-        let scale = (1u64 << 40) as f64;
-        let mut acc = Accum {
-            data: &mut data,
-            x0: 0,
-            y0: 0,
-            w: 4,
-            h: 4,
-            scale,
-        };
-        assert!(splat_linear(&c, 1.0, Some(&slope), &mut acc));
-        let g: Vec<f64> = data.iter().map(|&x| x as f64 / scale).collect();
+        let g = grid_with(c, Some(&slope)).expect("footprint refused");
         assert!((g.iter().sum::<f64>() - 1.0).abs() < 1e-9);
         // Pixel column 0 covers u in [0.5, 1]: integral of the density over [0.5,1]x[0.5,1].
         let exact = |u0: f64, u1: f64, v0: f64, v1: f64| {
@@ -279,20 +261,6 @@ mod tests {
 
     #[test]
     fn a_folded_quad_is_refused() {
-        let mut data = vec![0i64; 16];
-        let mut acc = Accum {
-            data: &mut data,
-            x0: 0,
-            y0: 0,
-            w: 4,
-            h: 4,
-            scale: 1.0,
-        };
-        assert!(!splat_linear(
-            &[[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]],
-            1.0,
-            None,
-            &mut acc
-        ));
+        assert!(grid_with([[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]], None).is_none());
     }
 }

@@ -38,8 +38,8 @@
 //! ```
 //!
 //! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the
-//! calibration loader; the
-//! renderer is a pure function of (scene, pose, settings) and never panics on input.
+//! calibration loader; the renderer is a pure function of (scene, pose, settings) and never
+//! panics on input.
 
 pub mod app;
 pub mod body;

@@ -8,21 +8,31 @@ use optistim::render::{Frame, Renderer};
 
 const Q_DOC: [f64; 4] = [0.5, -0.5, -0.5, 0.5];
 
-fn render(sun_dir: [f64; 3]) -> (optistim::config::Config, Frame) {
-    let cfg = SceneSpec {
+/// A camera on +X_B with the documented attitude; the Sun 1 au away along `sun_dir`.
+fn config(sun_dir: [f64; 3]) -> optistim::config::Config {
+    SceneSpec {
         camera_m: [20.0 * R_MOON, 0.0, 0.0],
         sun_m: sun_dir.map(|x| x * AU),
         attitude: Some(Q_DOC),
         focal_m: 0.01,
         ..Default::default()
     }
-    .config();
+    .config()
+}
+
+fn render(sun_dir: [f64; 3]) -> (optistim::config::Config, Frame) {
+    let cfg = config(sun_dir);
     let f = Renderer::new(2)
         .unwrap()
         .render(&cfg.scene, &cfg.pose, &cfg.settings)
         .unwrap();
     (cfg, f)
 }
+
+const TOP: usize = 0;
+const BOTTOM: usize = 1;
+const LEFT: usize = 2;
+const RIGHT: usize = 3;
 
 /// Energy in the top, bottom, left and right halves of the image.
 fn halves(f: &Frame) -> [f64; 4] {
@@ -66,42 +76,37 @@ fn north_pole_projects_to_the_top_centre() {
     );
 }
 
+/// With the Sun along `sun_dir`, the `lit` half holds the energy, the opposite half none,
+/// and the two halves across the other axis get equal shares.
+fn lights_one_half(sun_dir: [f64; 3], lit: usize, dark: usize, even: [usize; 2]) {
+    let (_, f) = render(sun_dir);
+    let e = halves(&f);
+    assert!(e[lit] > 0.0);
+    assert!(
+        e[dark] < 1e-3 * e[lit],
+        "lit {:e}, dark {:e}",
+        e[lit],
+        e[dark]
+    );
+    let ratio = e[even[0]] / e[even[1]];
+    assert!((ratio - 1.0).abs() < 1e-3, "unbalanced halves: {e:?}");
+}
+
 #[test]
 fn sun_at_north_lights_the_top_half() {
-    let (_, f) = render([0.0, 0.0, 1.0]);
-    let [top, bottom, left, right] = halves(&f);
-    assert!(top > 0.0);
-    assert!(bottom < 1e-3 * top, "top {top:e}, bottom {bottom:e}");
-    assert!(
-        (left / right - 1.0).abs() < 1e-3,
-        "left {left:e}, right {right:e}"
-    );
+    lights_one_half([0.0, 0.0, 1.0], TOP, BOTTOM, [LEFT, RIGHT]);
 }
 
 #[test]
 fn sun_at_plus_y_lights_the_right_half() {
-    let (_, f) = render([0.0, 1.0, 0.0]);
-    let [top, bottom, left, right] = halves(&f);
-    assert!(right > 0.0);
-    assert!(left < 1e-3 * right, "left {left:e}, right {right:e}");
-    assert!(
-        (top / bottom - 1.0).abs() < 1e-3,
-        "top {top:e}, bottom {bottom:e}"
-    );
+    lights_one_half([0.0, 1.0, 0.0], RIGHT, LEFT, [TOP, BOTTOM]);
 }
 
 #[test]
 fn written_files_keep_the_orientation() {
     // Through `optistim render`: the PNG's first row is the image top; the FITS reader (rows
     // stored bottom-up, ROWORDER) gives the same top-down image back.
-    let cfg = SceneSpec {
-        camera_m: [20.0 * R_MOON, 0.0, 0.0],
-        sun_m: [0.0, 0.0, AU],
-        attitude: Some(Q_DOC),
-        focal_m: 0.01,
-        ..Default::default()
-    }
-    .config();
+    let cfg = config([0.0, 0.0, 1.0]);
     let dir = std::env::temp_dir().join(format!("optistim-conv-{}", std::process::id()));
     optistim::app::render::run(&cfg, "conventions", &dir).unwrap();
     let decoder = png::Decoder::new(std::io::BufReader::new(

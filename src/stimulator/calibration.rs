@@ -14,8 +14,10 @@
 //! ...
 //! ```
 //!
-//! Validation refuses (with the file, line and value): a missing provenance line, columns that are
-//! not `dn` then `feff_*_w_m2` (the unit is part of the name), fewer than [`MIN_POINTS`] rows,
+//! The data rows are read with the `csv` crate, the `#` lines by hand (they carry the
+//! provenance). Validation refuses (with the file, line and value): a missing provenance line,
+//! columns that are not `dn` then `feff_*_w_m2` (the unit is part of the name), fewer than
+//! [`MIN_POINTS`] rows,
 //! non-finite or negative values, DN not strictly increasing, F_eff not strictly increasing
 //! (a screen whose light does not grow with DN cannot be inverted). Interpolation is linear or
 //! monotone cubic (Fritsch-Carlson, PCHIP-like); both keep the curve monotone, so the inverse
@@ -118,92 +120,12 @@ impl Curve {
             message,
         };
         let text = std::str::from_utf8(bytes).map_err(|e| bad(0, format!("not UTF-8: {e}")))?;
-        let mut prov = Provenance::default();
-        let mut header: Option<(usize, Vec<String>)> = None;
-        let mut rows: Vec<(usize, Vec<f64>)> = Vec::new();
-        let mut magic = false;
-        let mut full_scale: Option<f64> = None;
-        for (n, raw) in text.lines().enumerate() {
-            let line = n + 1;
-            let l = raw.trim();
-            if l.is_empty() {
-                continue;
-            }
-            if let Some(c) = l.strip_prefix('#') {
-                let c = c.trim();
-                if c.starts_with("optistim screen calibration") {
-                    if !c.ends_with("v1") {
-                        return Err(bad(
-                            line,
-                            format!("unsupported format \"{c}\": this build reads v1"),
-                        ));
-                    }
-                    magic = true;
-                } else if let Some((k, v)) = c.split_once(':') {
-                    let v = v.trim().to_string();
-                    match k.trim() {
-                        "date" => prov.date = v,
-                        "facility" => prov.facility = v,
-                        "method" => prov.method = v,
-                        "dn_full_scale" => {
-                            full_scale = Some(v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= 1.0).ok_or_else(|| bad(line, format!("dn_full_scale = \"{v}\": a number >= 1 (255 for an 8-bit screen, 1023 for 10-bit)")))?);
-                        }
-                        _ => {}
-                    }
-                }
-                continue;
-            }
-            let cells: Vec<&str> = l.split(',').map(str::trim).collect();
-            match &header {
-                None => {
-                    if cells.first() != Some(&"dn") || cells.len() < 2 {
-                        return Err(bad(
-                            line,
-                            format!(
-                                "header \"{l}\": expected \"dn,feff_w_m2\" or \"dn,feff_<channel>_w_m2,...\""
-                            ),
-                        ));
-                    }
-                    for c in &cells[1..] {
-                        if !(c.starts_with("feff") && c.ends_with("_w_m2")) {
-                            return Err(bad(
-                                line,
-                                format!(
-                                    "column \"{c}\": F_eff columns are named feff[_channel]_w_m2 (W/m^2 at the camera)"
-                                ),
-                            ));
-                        }
-                    }
-                    header = Some((line, cells.iter().map(|s| s.to_string()).collect()));
-                }
-                Some((_, names)) => {
-                    if cells.len() != names.len() {
-                        return Err(bad(
-                            line,
-                            format!(
-                                "{} values, the header has {} columns",
-                                cells.len(),
-                                names.len()
-                            ),
-                        ));
-                    }
-                    let mut vals = Vec::with_capacity(cells.len());
-                    for (c, name) in cells.iter().zip(names) {
-                        let v: f64 = c
-                            .parse()
-                            .map_err(|_| bad(line, format!("{name} = \"{c}\" is not a number")))?;
-                        if !v.is_finite() || v < 0.0 {
-                            return Err(bad(
-                                line,
-                                format!("{name} = {c}: must be finite and >= 0"),
-                            ));
-                        }
-                        vals.push(v);
-                    }
-                    rows.push((line, vals));
-                }
-            }
-        }
+        let Header {
+            magic,
+            provenance: prov,
+            full_scale,
+        } = read_header(text).map_err(|(line, m)| bad(line, m))?;
+        let (names, rows) = read_rows(bytes).map_err(|(line, m)| bad(line, m))?;
         if !magic {
             return Err(bad(
                 1,
@@ -225,9 +147,6 @@ impl Curve {
                 "missing \"# dn_full_scale: N\" (the screen's highest DN in the measurement)"
                     .into(),
             ));
-        };
-        let Some((_, names)) = header else {
-            return Err(bad(1, "no header row \"dn,feff_w_m2\"".into()));
         };
         if rows.len() < MIN_POINTS {
             return Err(bad(
@@ -320,7 +239,7 @@ impl Curve {
     }
 
     /// The (fractional) DN at which channel `c` shows `feff` [W/m^2]; `None` outside the
-    /// measured range (`Some(Err(below))` semantics are in [`Curve::invert_image`]).
+    /// measured range (which [`Curve::invert_image`] clips and counts).
     pub fn dn_for(&self, c: usize, feff: f64) -> Option<f64> {
         let ch = &self.channels[c];
         let (x, y) = (&self.dn, &ch.feff_w_m2);
@@ -388,6 +307,121 @@ impl Curve {
         }
         clips
     }
+}
+
+/// What the `#` lines say.
+struct Header {
+    magic: bool,
+    provenance: Provenance,
+    full_scale: Option<f64>,
+}
+
+/// Reads the `#` lines: the format line, provenance and `dn_full_scale`. Errors carry the line.
+fn read_header(text: &str) -> Result<Header, (usize, String)> {
+    let mut h = Header {
+        magic: false,
+        provenance: Provenance::default(),
+        full_scale: None,
+    };
+    for (n, raw) in text.lines().enumerate() {
+        let Some(c) = raw.trim().strip_prefix('#') else {
+            continue;
+        };
+        let (line, c) = (n + 1, c.trim());
+        if c.starts_with("optistim screen calibration") {
+            if !c.ends_with("v1") {
+                return Err((
+                    line,
+                    format!("unsupported format \"{c}\": this build reads v1"),
+                ));
+            }
+            h.magic = true;
+            continue;
+        }
+        let Some((k, v)) = c.split_once(':') else {
+            continue;
+        };
+        let v = v.trim().to_string();
+        match k.trim() {
+            "date" => h.provenance.date = v,
+            "facility" => h.provenance.facility = v,
+            "method" => h.provenance.method = v,
+            "dn_full_scale" => {
+                let x = v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= 1.0);
+                let allowed = "a number >= 1 (255 for an 8-bit screen, 1023 for 10-bit)";
+                h.full_scale =
+                    Some(x.ok_or((line, format!("dn_full_scale = \"{v}\": {allowed}")))?);
+            }
+            _ => {}
+        }
+    }
+    Ok(h)
+}
+
+/// Reads the column names and the data rows `(line, values)` with the `csv` crate (`#` lines
+/// are comments), checking names, column counts and that every value is a finite number >= 0.
+#[allow(clippy::type_complexity)]
+fn read_rows(bytes: &[u8]) -> Result<(Vec<String>, Vec<(usize, Vec<f64>)>), (usize, String)> {
+    let mut rdr = csv::ReaderBuilder::new()
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .flexible(true)
+        .from_reader(bytes);
+    let csv_err = |e: csv::Error| {
+        let line = e.position().map_or(0, |p| p.line() as usize);
+        (line, e.to_string())
+    };
+    let head = rdr.headers().map_err(csv_err)?.clone();
+    let head_line = head.position().map_or(0, |p| p.line() as usize);
+    let names: Vec<String> = head.iter().map(str::to_string).collect();
+    if names.first().map(String::as_str) != Some("dn") || names.len() < 2 {
+        let row = names.join(",");
+        return Err((
+            head_line,
+            format!(
+                "header \"{row}\": expected \"dn,feff_w_m2\" or \"dn,feff_<channel>_w_m2,...\""
+            ),
+        ));
+    }
+    if let Some(c) = names[1..]
+        .iter()
+        .find(|c| !(c.starts_with("feff") && c.ends_with("_w_m2")))
+    {
+        return Err((
+            head_line,
+            format!(
+                "column \"{c}\": F_eff columns are named feff[_channel]_w_m2 (W/m^2 at the camera)"
+            ),
+        ));
+    }
+    let mut rows = Vec::new();
+    for rec in rdr.records() {
+        let rec = rec.map_err(csv_err)?;
+        let line = rec.position().map_or(0, |p| p.line() as usize);
+        if rec.len() != names.len() {
+            return Err((
+                line,
+                format!(
+                    "{} values, the header has {} columns",
+                    rec.len(),
+                    names.len()
+                ),
+            ));
+        }
+        let vals = rec
+            .iter()
+            .zip(&names)
+            .map(|(c, name)| match c.parse::<f64>() {
+                Err(_) => Err((line, format!("{name} = \"{c}\" is not a number"))),
+                Ok(v) if !v.is_finite() || v < 0.0 => {
+                    Err((line, format!("{name} = {c}: must be finite and >= 0")))
+                }
+                Ok(v) => Ok(v),
+            })
+            .collect::<Result<Vec<f64>, _>>()?;
+        rows.push((line, vals));
+    }
+    Ok((names, rows))
 }
 
 #[inline(always)]

@@ -1,7 +1,7 @@
 //! Detector noises (paper Sec. 4.9, Fig. 21), one file per model. Every draw comes from a
-//! generator seeded by `(seed, noise, frame, block of 4096 pixels)` and drawn in pixel order, so a frame does not depend on thread
-//! scheduling and fixed-pattern noises (PRNU, dark-signal non-uniformity) stay put from frame
-//! to frame (their seed omits the frame).
+//! generator seeded by `(seed, stream, frame, block of 4096 pixels)` and drawn in pixel order,
+//! so a frame does not depend on thread scheduling, and fixed-pattern noises (PRNU,
+//! dark-signal non-uniformity) stay put from frame to frame (their seed omits the frame).
 
 pub mod dark;
 pub mod prnu;

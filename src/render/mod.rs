@@ -22,7 +22,7 @@ pub mod settings;
 pub mod view;
 
 use crate::scene::{Pose, Scene};
-use gridding::{Accum, Gridding, Slope};
+use gridding::{Accum, Gridding, Slope, floor_i64};
 use integration::Method;
 use pruning::{INTERIOR, PRUNED};
 use rayon::prelude::*;
@@ -108,8 +108,14 @@ struct Buffers {
     pl: Vec<f64>,
     mids: Vec<[f64; 2]>,
     verts: Vec<[f64; 2]>,
-    scratch: Vec<Vec<i64>>,
-    fixed: Vec<i64>,
+    /// Per gridding band: fixed-point rows and the kernel's scratch.
+    scratch: Vec<(Vec<i64>, Vec<f64>)>,
+    /// Gridding: (first row, last row) of each footprint, the band of each pixel row, and the
+    /// footprints of each band (flat, from `band_start[b]`).
+    rows: Vec<(u32, u32)>,
+    band_of_row: Vec<u32>,
+    band_start: Vec<usize>,
+    band_items: Vec<u32>,
     /// Kept quadrangles per latitude row (pruning fills it; gridding balances on it).
     row_kept: Vec<usize>,
     /// Per-quadrangle footprint centroid [px], density [(P/L)/px^2] (NaN: not usable) and
@@ -483,9 +489,11 @@ fn fit_slopes(trig: &GridTrig, buf: &mut Buffers) {
         });
 }
 
-/// The gridding step: latitude rows are split into contiguous blocks; each block
-/// accumulates in fixed point into its own window (the bounding box of its footprints), and
-/// the windows are summed as integers, so the result does not depend on the split.
+/// The gridding step. The image is cut into bands of pixel rows with about equal numbers of
+/// footprints, a few per thread so that rayon can balance them; each band grids, in fixed
+/// point, every footprint whose kernel reaches its rows (clipping the rest away) and writes its
+/// own rows of the image. Integer sums do not depend on order, and each pixel is summed by one
+/// band only, so the image does not depend on the split or the thread count.
 fn grid(
     kernel: Gridding,
     trig: &GridTrig,
@@ -496,31 +504,13 @@ fn grid(
     threads: usize,
 ) -> Vec<f64> {
     let mut out = vec![0.0; gw * gh];
-    if total <= 0.0 {
+    if total <= 0.0 || gw == 0 || gh == 0 {
         return out;
     }
     // 2^60 units for the whole cloud: no pixel can overflow, and the rounding of one
     // contribution is at most 2^-61 of the total.
     let scale = (1u64 << 60) as f64 / total;
-    let (nl, nk) = (trig.n_lon(), trig.n_lat());
-    // Blocks of latitude rows with about equal numbers of kept quadrangles, a few per thread
-    // so that rayon can balance them (the FOV often keeps far more of one half than the
-    // other). The split depends on the thread count, the sum of the blocks does not.
-    let blocks = (4 * threads.max(1)).min(nk);
-    let row_kept = &buf.row_kept;
-    let kept_total: usize = row_kept.iter().sum();
-    let mut bounds = Vec::with_capacity(blocks + 1);
-    bounds.push(0usize);
-    let mut acc_rows = 0usize;
-    for (k, n) in row_kept.iter().enumerate() {
-        acc_rows += n;
-        if bounds.len() < blocks && acc_rows * blocks >= kept_total * bounds.len() && k + 1 < nk {
-            bounds.push(k + 1);
-        }
-    }
-    bounds.push(nk);
-    let blocks = bounds.len() - 1;
-    buf.scratch.resize_with(blocks, Vec::new);
+    let nl = trig.n_lon();
     let reach = kernel.reach_px();
     let corners_needed = kernel.needs_corners();
     let linear = kernel == Gridding::PolygonLinear;
@@ -528,125 +518,135 @@ fn grid(
         fit_slopes(trig, buf);
     }
     let (keep, pl, mids, verts) = (&buf.keep, &buf.pl, &buf.mids, &buf.verts);
-    let (centroid, grad) = (&buf.centroid, &buf.grad);
-    let nan4 = [[f64::NAN; 2]; 4];
-    let windows: Vec<Option<(i64, i64, i64, i64)>> = buf
-        .scratch
-        .par_iter_mut()
-        .enumerate()
-        .map(|(b, scratch)| {
-            let (k0, k1) = (bounds[b], bounds[b + 1]);
-            // Bounding box of this block's footprints.
-            let (mut x0, mut y0, mut x1, mut y1) = (
-                f64::INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::NEG_INFINITY,
-            );
-            let mut grow = |p: [f64; 2]| {
-                if p[0].is_finite() && p[1].is_finite() {
-                    x0 = x0.min(p[0]);
-                    y0 = y0.min(p[1]);
-                    x1 = x1.max(p[0]);
-                    y1 = y1.max(p[1]);
-                }
-            };
-            for k in k0..k1 {
-                for i in 0..nl {
-                    let j = k * nl + i;
-                    if keep[j] == PRUNED {
-                        continue;
-                    }
-                    grow(mids[j]);
-                    if corners_needed {
-                        for (a, c) in [(i, k), (i + 1, k), (i + 1, k + 1), (i, k + 1)] {
-                            grow(verts[c * (nl + 1) + a]);
-                        }
-                    }
-                }
-            }
-            if x0 > x1 {
-                return None;
-            }
-            let wx0 = (x0.floor() as i64 - reach).max(0);
-            let wy0 = (y0.floor() as i64 - reach).max(0);
-            let wx1 = (x1.floor() as i64 + reach + 1).min(gw as i64);
-            let wy1 = (y1.floor() as i64 + reach + 1).min(gh as i64);
-            if wx1 <= wx0 || wy1 <= wy0 {
-                return None;
-            }
-            let (w, h) = (wx1 - wx0, wy1 - wy0);
-            scratch.clear();
-            scratch.resize((w * h) as usize, 0);
-            let mut acc = Accum {
-                data: scratch,
-                x0: wx0,
-                y0: wy0,
-                w,
-                h,
-                scale,
-            };
-            for k in k0..k1 {
-                for i in 0..nl {
-                    let j = k * nl + i;
-                    if keep[j] == PRUNED || pl[j] == 0.0 {
-                        continue;
-                    }
-                    let corners = if corners_needed {
-                        let v = |a: usize, c: usize| verts[c * (nl + 1) + a];
-                        [v(i, k), v(i + 1, k), v(i + 1, k + 1), v(i, k + 1)]
-                    } else {
-                        nan4
-                    };
-                    let mid = mids[j];
-                    if mid[0].is_finite() || corners_needed {
-                        let slope = linear.then(|| Slope {
-                            centroid: centroid[j],
-                            grad: grad[j],
-                        });
-                        kernel.splat(&corners, mid, pl[j], slope.as_ref(), &mut acc);
-                    }
-                }
-            }
-            Some((wx0, wy0, w, h))
-        })
-        .collect();
-    // Sum the windows as integers over their union, then convert once.
-    let union =
-        windows
-            .iter()
-            .flatten()
-            .fold(None, |u: Option<(i64, i64, i64, i64)>, &(x, y, w, h)| {
-                Some(match u {
-                    None => (x, y, x + w, y + h),
-                    Some((a, b, c, d)) => (a.min(x), b.min(y), c.max(x + w), d.max(y + h)),
-                })
-            });
-    let Some((ux0, uy0, ux1, uy1)) = union else {
-        return out;
+    let corners = |j: usize| -> [[f64; 2]; 4] {
+        let (i, k) = (j % nl, j / nl);
+        let v = |a: usize, c: usize| verts[c * (nl + 1) + a];
+        [v(i, k), v(i + 1, k), v(i + 1, k + 1), v(i, k + 1)]
     };
-    let uw = (ux1 - ux0) as usize;
-    buf.fixed.clear();
-    buf.fixed.resize(uw * (uy1 - uy0) as usize, 0);
-    for (win, scratch) in windows.iter().zip(&buf.scratch) {
-        let Some((x, y, w, h)) = *win else { continue };
-        for r in 0..h as usize {
-            let dst = ((y - uy0) as usize + r) * uw + (x - ux0) as usize;
-            let src = &scratch[r * w as usize..(r + 1) * w as usize];
-            for (d, s) in buf.fixed[dst..dst + w as usize].iter_mut().zip(src) {
-                *d += s;
+
+    // The pixel rows each footprint's kernel can reach (`u32::MAX`: none).
+    let rows = &mut buf.rows;
+    rows.clear();
+    rows.resize(keep.len(), (u32::MAX, 0));
+    rows.par_iter_mut().enumerate().for_each(|(j, r)| {
+        if keep[j] == PRUNED || pl[j] == 0.0 {
+            return;
+        }
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut grow = |p: [f64; 2]| {
+            if p[0].is_finite() && p[1].is_finite() {
+                lo = lo.min(p[1]);
+                hi = hi.max(p[1]);
             }
+        };
+        grow(mids[j]);
+        if corners_needed {
+            corners(j).into_iter().for_each(&mut grow);
+        } else if !mids[j][0].is_finite() {
+            return;
+        }
+        if lo > hi {
+            return;
+        }
+        let r0 = (floor_i64(lo) - reach).max(0);
+        let r1 = (floor_i64(hi) + reach).min(gh as i64 - 1);
+        if r0 <= r1 {
+            *r = (r0 as u32, r1 as u32);
+        }
+    });
+    let spans = rows
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.0 != u32::MAX)
+        .map(|(j, &(r0, r1))| (j as u32, r0, r1));
+
+    // Bands of rows with about equal numbers of footprints starting in them.
+    let bands_wanted = (4 * threads.max(1)).min(gh);
+    let hist = &mut buf.band_of_row;
+    hist.clear();
+    hist.resize(gh, 0);
+    let mut n = 0;
+    for (_, r0, _) in spans.clone() {
+        hist[r0 as usize] += 1;
+        n += 1;
+    }
+    let mut bounds = vec![0usize];
+    let mut seen = 0usize;
+    for (r, &c) in hist.iter().enumerate() {
+        seen += c as usize;
+        if bounds.len() < bands_wanted && seen * bands_wanted >= n * bounds.len() && r + 1 < gh {
+            bounds.push(r + 1);
         }
     }
-    let inv = 1.0 / scale;
-    let fixed = &buf.fixed;
-    out.par_chunks_mut(gw)
+    bounds.push(gh);
+    let bands = bounds.len() - 1;
+    // `hist` becomes the band of each row.
+    for b in 0..bands {
+        hist[bounds[b]..bounds[b + 1]].fill(b as u32);
+    }
+    let band_of = &*hist;
+    // Footprints of each band, flat, with offsets (a counting sort).
+    let starts = &mut buf.band_start;
+    starts.clear();
+    starts.resize(bands + 1, 0);
+    for (_, r0, r1) in spans.clone() {
+        for b in band_of[r0 as usize]..=band_of[r1 as usize] {
+            starts[b as usize + 1] += 1;
+        }
+    }
+    for b in 0..bands {
+        starts[b + 1] += starts[b];
+    }
+    let items = &mut buf.band_items;
+    items.clear();
+    items.resize(starts[bands], 0);
+    let mut fill = starts[..bands].to_vec();
+    for (j, r0, r1) in spans {
+        for b in band_of[r0 as usize]..=band_of[r1 as usize] {
+            items[fill[b as usize]] = j;
+            fill[b as usize] += 1;
+        }
+    }
+
+    // Grid each band into its own rows.
+    buf.scratch.resize_with(bands, Default::default);
+    let mut rows_out = Vec::with_capacity(bands);
+    let mut rest = out.as_mut_slice();
+    for b in 0..bands {
+        let (band, r) = rest.split_at_mut((bounds[b + 1] - bounds[b]) * gw);
+        rows_out.push(band);
+        rest = r;
+    }
+    let (centroid, grad, items, starts) =
+        (&buf.centroid, &buf.grad, &buf.band_items, &buf.band_start);
+    let nan4 = [[f64::NAN; 2]; 4];
+    buf.scratch
+        .par_iter_mut()
+        .zip(rows_out)
         .enumerate()
-        .skip(uy0 as usize)
-        .take((uy1 - uy0) as usize)
-        .for_each(|(y, row)| {
-            let src = &fixed[(y - uy0 as usize) * uw..(y - uy0 as usize + 1) * uw];
-            for (o, &s) in row[ux0 as usize..ux1 as usize].iter_mut().zip(src) {
+        .for_each(|(b, ((fixed, cells), band_out))| {
+            fixed.clear();
+            fixed.resize(band_out.len(), 0);
+            let mut acc = Accum {
+                data: fixed,
+                cells,
+                x0: 0,
+                y0: bounds[b] as i64,
+                w: gw as i64,
+                h: (bounds[b + 1] - bounds[b]) as i64,
+                scale,
+            };
+            for &j in &items[starts[b]..starts[b + 1]] {
+                let j = j as usize;
+                let c = if corners_needed { corners(j) } else { nan4 };
+                let slope = linear.then(|| Slope {
+                    centroid: centroid[j],
+                    grad: grad[j],
+                });
+                kernel.splat(&c, mids[j], pl[j], slope.as_ref(), &mut acc);
+            }
+            let inv = 1.0 / scale;
+            for (o, &s) in band_out.iter_mut().zip(fixed.iter()) {
                 *o = s as f64 * inv;
             }
         });

@@ -15,7 +15,7 @@
 //! | [`detector`] | (P/L) -> signal -> electrons with noises -> DN (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
-//! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts), dithering |
+//! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs |
@@ -34,7 +34,9 @@
 //!                                        │
 //!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
 //!                                        │ signal [e-/s]
-//!   stimulator: F_eff = k·S (Eq. 60) → calibration⁻¹ (+ dither) → screen DN   (issue 4: in progress)
+//!   stimulator: F_eff = k·S (Eq. 60) → screen region (collimator) → calibration⁻¹ (+ dither)
+//!               → screen DN ─► simulated camera: true response → collimator → detector → DN
+//!               (the wgpu presenter that shows screen DN: issue 4, still to come)
 //! ```
 //!
 //! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the

@@ -48,6 +48,18 @@ enum Command {
         #[arg(long)]
         per_frame: Option<PathBuf>,
     },
+    /// Measure the screen's calibration curve on the bench of the scene's [stimulator]
+    /// section (the simulated camera) and write it as CSV (calibration/README.md).
+    Calibrate {
+        /// Scene TOML with a [stimulator] section.
+        scene: PathBuf,
+        /// Codes in the ramp (quadratically spaced, denser at the dark end).
+        #[arg(long, default_value_t = 33)]
+        steps: usize,
+        /// Curve file to write.
+        #[arg(long, default_value = "calibration/measured.csv")]
+        out: PathBuf,
+    },
 }
 
 fn run() -> anyhow::Result<()> {
@@ -92,6 +104,11 @@ fn run() -> anyhow::Result<()> {
                 }
             })?;
             println!("{}", serde_json::to_string(&report)?);
+        }
+        Command::Calibrate { scene, steps, out } => {
+            let cfg = config::load(&scene)?;
+            let run = app::calibrate::run(&cfg, steps, &out)?;
+            println!("{}", serde_json::to_string(&run)?);
         }
     }
     Ok(())

@@ -56,7 +56,7 @@ pub fn run(
             let n = max_frames.unwrap_or(20);
             let poses = (0..n)
                 .map(|i| {
-                    let mut p = config.pose.clone();
+                    let mut p = config.pose;
                     p.frame_id = i as u64;
                     (0.0, p)
                 })

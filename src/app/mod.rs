@@ -1,6 +1,7 @@
 //! The commands behind the binary. Each returns a typed result that `main.rs` prints.
 
 pub mod bench;
+pub mod calibrate;
 pub mod render;
 
 #[derive(Debug, thiserror::Error)]
@@ -11,6 +12,8 @@ pub enum AppError {
     Render(#[from] crate::render::RenderError),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
+    #[error(transparent)]
+    Stimulator(#[from] crate::stimulator::StimulatorError),
     #[error(transparent)]
     Trajectory(#[from] crate::trajectory::TrajectoryError),
     #[error("{path}: cannot create the output folder: {source}")]

@@ -5,6 +5,9 @@ use super::AppError;
 use crate::config::Config;
 use crate::io::fits::{self, Bitpix, Card, Value};
 use crate::render::{FrameStats, Renderer};
+use crate::stimulator::calibration::ClipCounts;
+use crate::stimulator::camera::SimulatedCamera;
+use crate::stimulator::{Stimulator, StimulatorTimings};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -23,6 +26,22 @@ pub struct RenderSummary {
     pub saturated_px: usize,
     /// Time per stage [ms]: the renderer's steps, then the detector and the file writes.
     pub timings_ms: serde_json::Value,
+    /// With a `[stimulator]` section: the screen frame's report.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stimulator: Option<StimulatorSummary>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct StimulatorSummary {
+    pub calibration_id: String,
+    pub calibration_sha256: String,
+    /// Pixels whose F_eff fell below the screen's dark level or above its maximum.
+    pub clipped: ClipCounts,
+    /// Total F_eff over the camera frame [W/m^2 summed over pixels].
+    pub total_feff_w_m2: f64,
+    /// The simulated camera's total signal [e-/s] (compare with `total_signal_e_per_s`).
+    pub camera_total_signal_e_per_s: f64,
+    pub timings_ms: StimulatorTimings,
 }
 
 /// Renders the scene of `config` and writes the outputs into `out`.
@@ -80,7 +99,39 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
         &with("m", "range to the surface, NaN = empty"),
     )?;
     crate::io::write_png_gray(&out.join("image.png"), w, h, &dn, det.bit_depth)?;
-    let write_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let mut write_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+    let stimulator = match &config.stimulator {
+        None => None,
+        Some(st) => {
+            let intr = &config.scene.camera.intrinsics;
+            let mut stim = Stimulator::new(st, intr, det)?;
+            let frame_st = stim.process(&signal)?;
+            let camera = SimulatedCamera::from_config(st, intr, det)?;
+            let seen = camera.capture(&frame_st.screen_dn, config.pose.frame_id)?;
+            let t0 = Instant::now();
+            fits::write(
+                &out.join("feff.fits"),
+                w,
+                h,
+                &frame_st.feff_w_m2,
+                Bitpix::F64,
+                &with("W/m2", "effective flux density at the camera (Eq. 58)"),
+            )?;
+            let [sw, sh] = st.screen_px;
+            crate::io::write_png_gray(&out.join("screen.png"), sw, sh, &frame_st.screen_dn, 16)?;
+            crate::io::write_png_gray(&out.join("camera.png"), w, h, &seen.dn, det.bit_depth)?;
+            write_ms += t0.elapsed().as_secs_f64() * 1e3;
+            Some(StimulatorSummary {
+                calibration_id: frame_st.calibration_id,
+                calibration_sha256: frame_st.calibration_sha256,
+                clipped: frame_st.clips,
+                total_feff_w_m2: frame_st.feff_w_m2.iter().sum(),
+                camera_total_signal_e_per_s: seen.signal_e_per_s.iter().sum(),
+                timings_ms: frame_st.timings_ms,
+            })
+        }
+    };
 
     let mut timings = serde_json::to_value(frame.stats.timings_ms).unwrap_or_default();
     if let Some(o) = timings.as_object_mut() {
@@ -98,6 +149,7 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
         covered_px: frame.stats.covered_px,
         saturated_px: dn.iter().filter(|&&x| x >= max_dn).count(),
         timings_ms: timings,
+        stimulator,
     })
 }
 

@@ -15,9 +15,13 @@ use crate::render::gridding::Gridding;
 use crate::render::reconstruction::Reconstruction;
 use crate::render::{FovShape, Integration, PointBudget, Sampling, Settings, Split};
 use crate::scene::{Camera, Pose, Scene};
+use crate::stimulator::StimulatorConfig;
+use crate::stimulator::calibration::Interp;
+use crate::stimulator::dither::Dither;
+use crate::stimulator::screen::Resampler;
 use glam::DVec3;
 use raw::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -45,6 +49,8 @@ pub struct Config {
     pub settings: Settings,
     /// Band of `power.fits` [m]; `None` for the whole spectrum.
     pub power_band_m: Option<(f64, f64)>,
+    /// The `[stimulator]` section, when there is one.
+    pub stimulator: Option<StimulatorConfig>,
 }
 
 /// Reads and validates a scene file.
@@ -157,11 +163,129 @@ impl Validator<'_> {
         let (camera, power_band_m) = self.camera(&raw.camera)?;
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
         let settings = self.render(&raw.render, &body.brdf)?;
+        let stimulator = match &raw.stimulator {
+            Some(st) => Some(self.stimulator(st, &camera.intrinsics)?),
+            None => None,
+        };
         Ok(Config {
             scene: Scene { sun, body, camera },
             pose,
             settings,
             power_band_m,
+            stimulator,
+        })
+    }
+
+    /// A path in the file, relative to the file's folder.
+    fn path(&self, p: &str) -> PathBuf {
+        let p = Path::new(p);
+        if p.is_absolute() {
+            return p.to_path_buf();
+        }
+        Path::new(self.file)
+            .parent()
+            .map_or_else(|| p.to_path_buf(), |d| d.join(p))
+    }
+
+    fn stimulator(&self, s: &RawStimulator, cam: &Intrinsics) -> R<StimulatorConfig> {
+        let interp = match self.choice(
+            "stimulator.interpolation",
+            s.interpolation.as_deref().unwrap_or("pchip"),
+            &["linear", "pchip"],
+        )? {
+            "linear" => Interp::Linear,
+            _ => Interp::Pchip,
+        };
+        let bits = s.screen_bit_depth.unwrap_or(10);
+        if bits != 8 && bits != 10 {
+            return self.err("stimulator.screen_bit_depth", bits, "8 or 10");
+        }
+        let dither = match self.choice(
+            "stimulator.dither",
+            s.dither.as_deref().unwrap_or("none"),
+            &["none", "ordered"],
+        )? {
+            "ordered" => Dither::Ordered,
+            _ => Dither::None,
+        };
+        let screen = s.screen_resolution_px;
+        if screen.iter().any(|&n| n == 0 || n > 16384) {
+            return self.err(
+                "stimulator.screen_resolution_px",
+                screen,
+                "two integers in [1, 16384]",
+            );
+        }
+        let pitch = self.positive("stimulator.screen_pixel_pitch_m", s.screen_pixel_pitch_m)?;
+        let f_col = self.positive(
+            "stimulator.collimator_focal_length_m",
+            s.collimator_focal_length_m,
+        )?;
+        let t_col = s.collimator_transmittance.unwrap_or(1.0);
+        if !(t_col > 0.0 && t_col <= 1.0) {
+            return self.err(
+                "stimulator.collimator_transmittance",
+                t_col,
+                "a number in (0, 1]",
+            );
+        }
+        let corner_gain = self.in_range(
+            "stimulator.screen_corner_gain",
+            s.screen_corner_gain.unwrap_or(1.0),
+            0.01,
+            2.0,
+        )?;
+        // Camera pixels per screen pixel (stimulator::screen).
+        let scale = [0, 1].map(|a| (pitch / f_col) / (cam.pixel_pitch_m[a] / cam.focal_length_m));
+        let scale = match self.choice(
+            "stimulator.mapping",
+            s.mapping.as_deref().unwrap_or("one_to_one"),
+            &["one_to_one", "area"],
+        )? {
+            "one_to_one" => {
+                if scale.iter().any(|x| (x - 1.0).abs() > 1e-6) {
+                    return self.err(
+                        "stimulator.mapping",
+                        "one_to_one",
+                        &format!(
+                            "\"area\", or a screen pitch and collimator focal length giving one \
+                             camera pixel per screen pixel (they give {:.6} x {:.6})",
+                            scale[0], scale[1]
+                        ),
+                    );
+                }
+                [1.0, 1.0]
+            }
+            _ => scale,
+        };
+        let region =
+            Resampler::new([cam.width_px as usize, cam.height_px as usize], scale).region_px();
+        let screen_px = [screen[0] as usize, screen[1] as usize];
+        let origin_px = match s.region_origin_px {
+            Some(o) => [o[0] as usize, o[1] as usize],
+            None => [0, 1].map(|a| screen_px[a].saturating_sub(region[a]) / 2),
+        };
+        if (0..2).any(|a| origin_px[a] + region[a] > screen_px[a]) {
+            return self.err(
+                "stimulator.region_origin_px",
+                origin_px,
+                &format!(
+                    "a region of {} x {} screen px inside the {} x {} screen",
+                    region[0], region[1], screen_px[0], screen_px[1]
+                ),
+            );
+        }
+        Ok(StimulatorConfig {
+            calibration: self.path(&s.calibration),
+            interp,
+            screen_bits: bits,
+            dither,
+            screen_px,
+            origin_px,
+            scale,
+            collimator_transmittance: t_col,
+            true_response: s.true_response.as_deref().map(|p| self.path(p)),
+            corner_gain,
         })
     }
 

@@ -12,6 +12,7 @@ pub struct RawScene {
     pub pose: RawPose,
     #[serde(default)]
     pub render: RawRender,
+    pub stimulator: Option<RawStimulator>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -161,4 +162,24 @@ pub struct RawRender {
     pub threads: Option<i64>,
     pub bounding_tolerance_rad: Option<f64>,
     pub depth: Option<bool>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawStimulator {
+    /// Calibration curve CSV, relative to the scene file's folder.
+    pub calibration: String,
+    pub interpolation: Option<String>,
+    pub screen_bit_depth: Option<u32>,
+    pub dither: Option<String>,
+    pub screen_resolution_px: [u32; 2],
+    pub screen_pixel_pitch_m: f64,
+    pub region_origin_px: Option<[u32; 2]>,
+    pub mapping: Option<String>,
+    pub collimator_focal_length_m: f64,
+    pub collimator_transmittance: Option<f64>,
+    /// The simulated camera's screen: its true response (default: the calibration) and the
+    /// gain at the region's corners (default 1, uniform).
+    pub true_response: Option<String>,
+    pub screen_corner_gain: Option<f64>,
 }

@@ -4,15 +4,216 @@
 //! inverse of the screen's measured calibration curve ([`calibration`]), with optional
 //! dithering ([`dither`]) at the screen's DN depth.
 //!
-//! Still to come here (issue 4): the `[stimulator]` config section (screen geometry,
-//! collimator), the wgpu presenter, the simulated camera and `optistim calibrate`.
+//! Layout: [`screen`] maps camera pixels onto screen pixels (collimator geometry);
+//! [`Stimulator`] turns one rendered signal image into a full screen of DN codes, reporting
+//! clipped pixels and the curve that made it; [`camera::SimulatedCamera`] is the bench's
+//! stand-in (screen DN -> the screen's true response -> collimator -> detector);
+//! [`calibrate`] measures a curve through any [`calibrate::Bench`]. The wgpu presenter is still
+//! to come (issue 4).
 
+pub mod calibrate;
 pub mod calibration;
+pub mod camera;
 pub mod dither;
+pub mod screen;
 
 use crate::camera::Intrinsics;
 use crate::detector::Detector;
 use crate::radiometry::{C, H, max_qe_t_lambda};
+use calibration::{CalibrationError, ClipCounts, Curve, Interp, Inverse};
+use dither::Dither;
+use screen::Resampler;
+use serde::Serialize;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The `[stimulator]` scene section, validated (`docs/scene.md`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StimulatorConfig {
+    /// The calibration curve the stimulator inverts (`calibration/README.md`).
+    pub calibration: PathBuf,
+    pub interp: Interp,
+    /// Screen DN depth: 8 or 10 bit.
+    pub screen_bits: u32,
+    pub dither: Dither,
+    /// Whole screen [px].
+    pub screen_px: [usize; 2],
+    /// Top-left screen pixel of the image region.
+    pub origin_px: [usize; 2],
+    /// Camera pixels per screen pixel, per axis (`screen` module docs); `[1, 1]` for the
+    /// `one_to_one` mapping.
+    pub scale: [f64; 2],
+    /// Collimator transmittance: the screen emits `F_eff / T` so that the camera gets `F_eff`.
+    /// The curves give F_eff behind a lossless collimator; for a curve measured through the
+    /// collimator in use, set 1.
+    pub collimator_transmittance: f64,
+    /// The simulated camera's screen: its true response (the calibration when `None`) and
+    /// its non-uniformity, the gain at the region's corners (radial, 1 at the centre).
+    pub true_response: Option<PathBuf>,
+    pub corner_gain: f64,
+}
+
+impl StimulatorConfig {
+    pub fn levels(&self) -> u32 {
+        1 << self.screen_bits
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StimulatorError {
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    #[error("signal image has {got} pixels, the camera {want}")]
+    ImageSize { got: usize, want: usize },
+    #[error("calibration: {0}")]
+    Measurement(String),
+}
+
+/// Time per stimulator stage [ms].
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StimulatorTimings {
+    pub feff: f64,
+    pub resample: f64,
+    pub invert: f64,
+}
+
+/// One frame through the stimulator chain.
+#[derive(Clone, Debug)]
+pub struct StimulatorFrame {
+    /// F_eff per camera pixel [W/m^2] (Eq. 58).
+    pub feff_w_m2: Vec<f64>,
+    /// The whole screen in DN codes (`screen_px`, row-major; the image in its region, the
+    /// rest at code 0).
+    pub screen_dn: Vec<u16>,
+    pub clips: ClipCounts,
+    /// The curve that made this frame: its id and the SHA-256 of its file.
+    pub calibration_id: String,
+    pub calibration_sha256: String,
+    pub timings_ms: StimulatorTimings,
+}
+
+/// The stimulator: F_eff (Eq. 60) -> screen region (collimator mapping) -> DN through the
+/// inverse calibration curve. The curve can be replaced between frames ([`Stimulator::replay`]).
+pub struct Stimulator {
+    config: StimulatorConfig,
+    curve: Arc<Curve>,
+    /// The curve's inverse at the screen's depth, rebuilt when the curve changes.
+    inverse: Inverse,
+    k: f64,
+    camera_px: [usize; 2],
+    resampler: Resampler,
+    scratch: Vec<f64>,
+}
+
+impl Stimulator {
+    /// Loads the calibration curve named by `config`.
+    pub fn new(
+        config: &StimulatorConfig,
+        intrinsics: &Intrinsics,
+        detector: &Detector,
+    ) -> Result<Stimulator, StimulatorError> {
+        let curve = Curve::load(&config.calibration, config.interp)?;
+        Ok(Stimulator::with_curve(
+            config,
+            intrinsics,
+            detector,
+            Arc::new(curve),
+        ))
+    }
+
+    pub fn with_curve(
+        config: &StimulatorConfig,
+        intrinsics: &Intrinsics,
+        detector: &Detector,
+        curve: Arc<Curve>,
+    ) -> Stimulator {
+        let camera_px = [intrinsics.width_px as usize, intrinsics.height_px as usize];
+        Stimulator {
+            config: config.clone(),
+            inverse: curve.inverse(0, config.levels()),
+            curve,
+            k: feff_factor(detector, intrinsics),
+            camera_px,
+            resampler: Resampler::new(camera_px, config.scale),
+            scratch: Vec::new(),
+        }
+    }
+
+    pub fn config(&self) -> &StimulatorConfig {
+        &self.config
+    }
+
+    /// `k` of Eq. 60 for the flight camera [W m^-2 per e-/s].
+    pub fn k(&self) -> f64 {
+        self.k
+    }
+
+    pub fn resampler(&self) -> &Resampler {
+        &self.resampler
+    }
+
+    /// The curve in use.
+    pub fn curve(&self) -> &Arc<Curve> {
+        &self.curve
+    }
+
+    /// Replays another curve from the next frame on, without a restart; returns the old one.
+    pub fn replay(&mut self, curve: Arc<Curve>) -> Arc<Curve> {
+        self.inverse = curve.inverse(0, self.config.levels());
+        std::mem::replace(&mut self.curve, curve)
+    }
+
+    /// One frame: `signal_e_per_s` is the flight camera's signal image (row-major).
+    pub fn process(&mut self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
+        let want = self.camera_px[0] * self.camera_px[1];
+        if signal_e_per_s.len() != want {
+            return Err(StimulatorError::ImageSize {
+                got: signal_e_per_s.len(),
+                want,
+            });
+        }
+        let mut t = StimulatorTimings::default();
+        let t0 = Instant::now();
+        let mut feff_w_m2 = Vec::new();
+        feff(signal_e_per_s, self.k, &mut feff_w_m2);
+        t.feff = ms(t0);
+
+        let t0 = Instant::now();
+        self.resampler.to_screen(&feff_w_m2, &mut self.scratch);
+        // The screen emits F_eff / T so that the camera, behind the collimator, gets F_eff.
+        let inv_t = 1.0 / self.config.collimator_transmittance;
+        self.scratch.iter_mut().for_each(|f| *f *= inv_t);
+        t.resample = ms(t0);
+
+        let t0 = Instant::now();
+        let [rw, rh] = self.resampler.region_px();
+        let mut region = Vec::new();
+        let clips = self
+            .inverse
+            .apply(&self.scratch, rw, self.config.dither, &mut region);
+        let [sw, sh] = self.config.screen_px;
+        let [ox, oy] = self.config.origin_px;
+        let mut screen_dn = vec![0u16; sw * sh];
+        for (r, row) in region.chunks(rw).enumerate().take(rh) {
+            let dst = (oy + r) * sw + ox;
+            screen_dn[dst..dst + rw].copy_from_slice(row);
+        }
+        t.invert = ms(t0);
+        Ok(StimulatorFrame {
+            feff_w_m2,
+            screen_dn,
+            clips,
+            calibration_id: self.curve.id.clone(),
+            calibration_sha256: self.curve.sha256.clone(),
+            timings_ms: t,
+        })
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
 
 /// `k` of Eq. 60 [W m^-2 per e-/s]: `h c / (A_cam max(QE T lambda))`.
 pub fn feff_factor(detector: &Detector, intrinsics: &Intrinsics) -> f64 {

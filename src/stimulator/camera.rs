@@ -1,0 +1,142 @@
+//! The simulated camera, the bench hardware's stand-in: screen DN -> F_eff emitted through the
+//! screen's *true* response (which may differ from the loaded calibration, to simulate
+//! mis-calibration), times a non-uniformity gain and the collimator transmittance -> the
+//! collimator's mapping of screen pixels onto camera pixels -> signal `S = F_eff / k`
+//! (Eq. 58, the screen taken to emit at the wavelength that defines F_eff) -> the same
+//! detector model as the renderer (exposure, noise, full well, ADC).
+
+use super::calibration::Curve;
+use super::screen::Resampler;
+use super::{StimulatorConfig, StimulatorError, feff_factor};
+use crate::camera::Intrinsics;
+use crate::detector::Detector;
+
+/// What the simulated camera saw.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    /// F_eff reaching each camera pixel [W/m^2].
+    pub feff_w_m2: Vec<f64>,
+    /// Signal [e-/s].
+    pub signal_e_per_s: Vec<f64>,
+    /// The camera's image [DN].
+    pub dn: Vec<u16>,
+}
+
+pub struct SimulatedCamera {
+    true_response: Curve,
+    levels: u32,
+    camera_px: [usize; 2],
+    screen_px: [usize; 2],
+    origin_px: [usize; 2],
+    resampler: Resampler,
+    /// Per region pixel: non-uniformity gain times collimator transmittance.
+    gain: Vec<f64>,
+    detector: Detector,
+    k: f64,
+}
+
+impl SimulatedCamera {
+    /// The camera of `intrinsics` and `detector` looking at the screen of `config` whose true
+    /// response is `true_response`.
+    pub fn new(
+        config: &StimulatorConfig,
+        true_response: Curve,
+        intrinsics: &Intrinsics,
+        detector: &Detector,
+    ) -> SimulatedCamera {
+        let camera_px = [intrinsics.width_px as usize, intrinsics.height_px as usize];
+        let resampler = Resampler::new(camera_px, config.scale);
+        let [rw, rh] = resampler.region_px();
+        // Radial falloff: 1 at the region's centre, `corner_gain` at its corners.
+        let (cx, cy) = (0.5 * rw as f64, 0.5 * rh as f64);
+        let r2_corner = cx * cx + cy * cy;
+        let gain = (0..rw * rh)
+            .map(|p| {
+                let (x, y) = ((p % rw) as f64 + 0.5 - cx, (p / rw) as f64 + 0.5 - cy);
+                let r2 = (x * x + y * y) / r2_corner;
+                (1.0 - (1.0 - config.corner_gain) * r2) * config.collimator_transmittance
+            })
+            .collect();
+        SimulatedCamera {
+            true_response,
+            levels: config.levels(),
+            camera_px,
+            screen_px: config.screen_px,
+            origin_px: config.origin_px,
+            resampler,
+            gain,
+            detector: detector.clone(),
+            k: feff_factor(detector, intrinsics),
+        }
+    }
+
+    /// Loads the true response named by `config` (the calibration when none is named).
+    pub fn from_config(
+        config: &StimulatorConfig,
+        intrinsics: &Intrinsics,
+        detector: &Detector,
+    ) -> Result<SimulatedCamera, StimulatorError> {
+        let path = config.true_response.as_ref().unwrap_or(&config.calibration);
+        let curve = Curve::load(path, config.interp)?;
+        Ok(SimulatedCamera::new(config, curve, intrinsics, detector))
+    }
+
+    /// Replaces the per-region-pixel non-uniformity map (gains, row-major, region size).
+    pub fn set_non_uniformity(&mut self, gain: &[f64], collimator_transmittance: f64) {
+        self.gain = gain.iter().map(|g| g * collimator_transmittance).collect();
+    }
+
+    pub fn camera_px(&self) -> [usize; 2] {
+        self.camera_px
+    }
+
+    pub fn detector(&self) -> &Detector {
+        &self.detector
+    }
+
+    pub fn detector_mut(&mut self) -> &mut Detector {
+        &mut self.detector
+    }
+
+    /// `k` of Eq. 60 for this camera.
+    pub fn k(&self) -> f64 {
+        self.k
+    }
+
+    /// Images a whole screen of DN codes (`screen_px`, row-major).
+    pub fn capture(&self, screen_dn: &[u16], frame_id: u64) -> Result<Capture, StimulatorError> {
+        let [sw, sh] = self.screen_px;
+        if screen_dn.len() != sw * sh {
+            return Err(StimulatorError::ImageSize {
+                got: screen_dn.len(),
+                want: sw * sh,
+            });
+        }
+        let [rw, rh] = self.resampler.region_px();
+        let [ox, oy] = self.origin_px;
+        let top = (self.levels - 1) as f64;
+        let full = self.true_response.dn_full_scale;
+        // The screen's emission per code, once: a frame has at most `levels` distinct codes.
+        let table: Vec<f64> = (0..self.levels)
+            .map(|c| self.true_response.feff_at(0, c as f64 / top * full))
+            .collect();
+        let mut emitted = Vec::with_capacity(rw * rh);
+        for r in 0..rh {
+            let row = &screen_dn[(oy + r) * sw + ox..(oy + r) * sw + ox + rw];
+            for (i, &code) in row.iter().enumerate() {
+                let f = table[(code as usize).min(table.len() - 1)];
+                emitted.push(f * self.gain[r * rw + i]);
+            }
+        }
+        let mut feff_w_m2 = Vec::new();
+        self.resampler.to_camera(&emitted, &mut feff_w_m2);
+        let signal_e_per_s: Vec<f64> = feff_w_m2.iter().map(|f| f / self.k).collect();
+        let mut dn = Vec::new();
+        self.detector.expose(&signal_e_per_s, frame_id, &mut dn);
+        Ok(Capture {
+            feff_w_m2,
+            signal_e_per_s,
+            dn,
+        })
+    }
+}

@@ -49,6 +49,7 @@ pub mod brdf;
 pub mod camera;
 pub mod config;
 pub mod detector;
+pub mod display;
 pub mod geometry;
 pub mod io;
 pub mod radiometry;

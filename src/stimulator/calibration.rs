@@ -307,7 +307,7 @@ impl Curve {
 }
 
 /// Table entries per output code in [`Inverse`].
-const INVERSE_SUBSTEPS: f64 = 4.0;
+pub const INVERSE_SUBSTEPS: f64 = 4.0;
 
 /// A curve's inverse at the codes of one output depth: F_eff at every quarter code, increasing.
 #[derive(Clone, Debug, PartialEq)]
@@ -319,6 +319,24 @@ pub struct Inverse {
 }
 
 impl Inverse {
+    /// F_eff [W/m^2] at codes `code_lo + k / INVERSE_SUBSTEPS`, increasing.
+    pub fn table(&self) -> &[f64] {
+        &self.feff
+    }
+
+    /// The lowest and highest codes the curve reaches.
+    pub fn codes(&self) -> (f64, f64) {
+        (
+            self.code_lo,
+            self.code_lo + (self.feff.len() - 1) as f64 / INVERSE_SUBSTEPS,
+        )
+    }
+
+    /// The curve's F_eff range: dark level and maximum [W/m^2].
+    pub fn range(&self) -> (f64, f64) {
+        self.range
+    }
+
     /// The fractional code showing `f` (inside the curve's range): the quarter code below by
     /// bisection, the rest by linear interpolation (within 0.01 code of the exact inverse of
     /// the example curve, whose gamma bends most near code 0: unit test).

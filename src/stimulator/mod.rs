@@ -83,6 +83,9 @@ pub struct StimulatorTimings {
 pub struct StimulatorFrame {
     /// F_eff per camera pixel [W/m^2] (Eq. 58).
     pub feff_w_m2: Vec<f64>,
+    /// F_eff the screen region must emit [W/m^2]: mapped onto screen pixels and divided by
+    /// the collimator transmittance (what the GPU presenter's LUT pass takes).
+    pub region_feff_w_m2: Vec<f64>,
     /// The whole screen in DN codes (`screen_px`, row-major; the image in its region, the
     /// rest at code 0).
     pub screen_dn: Vec<u16>,
@@ -202,6 +205,7 @@ impl Stimulator {
         t.invert = ms(t0);
         Ok(StimulatorFrame {
             feff_w_m2,
+            region_feff_w_m2: self.scratch.clone(),
             screen_dn,
             clips,
             calibration_id: self.curve.id.clone(),

@@ -1,0 +1,68 @@
+//! The GPU presenter's LUT pass, off-screen on whatever adapter wgpu finds (in CI: Mesa's
+//! software Vulkan driver, lavapipe, which `.ci/run` installs): every screen pixel equals the
+//! CPU reference (`Stimulator::process`) within 1 LSB.
+
+use optistim::config;
+use optistim::display::Presenter;
+use optistim::render::Renderer;
+use optistim::stimulator::Stimulator;
+use optistim::stimulator::dither::Dither;
+use std::path::PathBuf;
+
+fn check(bits: u32, dither: Dither) {
+    let mut cfg = config::load(&PathBuf::from("config/stimulator.toml")).unwrap();
+    let st = cfg.stimulator.as_mut().unwrap();
+    st.screen_bits = bits;
+    st.dither = dither;
+    let st = cfg.stimulator.clone().unwrap();
+    let cam = &cfg.scene.camera;
+    let frame = Renderer::new(0)
+        .unwrap()
+        .render(&cfg.scene, &cfg.pose, &cfg.settings)
+        .unwrap();
+    let signal = cam
+        .detector
+        .signal(&frame.pl, cam.detector.signal_factor(&cfg.scene.sun));
+    let mut stim = Stimulator::new(&st, &cam.intrinsics, &cam.detector).unwrap();
+    let cpu = stim.process(&signal).unwrap();
+
+    let mut presenter = Presenter::new_headless(bits).unwrap_or_else(|e| panic!("{e}"));
+    presenter.set_inverse(&stim.curve().inverse(0, st.levels()));
+    let region = stim.resampler().region_px();
+    let mut gpu = Vec::new();
+    let mut times = Vec::new();
+    for _ in 0..3 {
+        let t = presenter
+            .draw_offscreen(&st, region, &cpu.region_feff_w_m2, &mut gpu)
+            .unwrap();
+        times.push(t);
+    }
+    assert_eq!(gpu.len(), cpu.screen_dn.len());
+    let (mut exact, mut off_by_one, mut worse) = (0usize, 0usize, 0usize);
+    for (&g, &c) in gpu.iter().zip(&cpu.screen_dn) {
+        match (g as i32 - c as i32).abs() {
+            0 => exact += 1,
+            1 => off_by_one += 1,
+            _ => worse += 1,
+        }
+    }
+    eprintln!(
+        "{} | {bits} bit {dither:?}: {exact} px equal, {off_by_one} within 1 LSB, {worse} worse; \
+         timings {:?}",
+        presenter.adapter(),
+        times.last().unwrap()
+    );
+    assert_eq!(worse, 0, "{worse} pixels differ by more than 1 LSB");
+    // The region is not trivially dark: most of the Moon's pixels are above code 0.
+    assert!(gpu.iter().filter(|&&x| x > 0).count() > 400_000);
+}
+
+#[test]
+fn the_lut_pass_matches_the_cpu_reference_at_10_bit_dithered() {
+    check(10, Dither::Ordered);
+}
+
+#[test]
+fn the_lut_pass_matches_the_cpu_reference_at_8_bit() {
+    check(8, Dither::None);
+}

@@ -110,14 +110,12 @@ struct Buffers {
     verts: Vec<[f64; 2]>,
     /// Per gridding band: fixed-point rows and the kernel's scratch.
     scratch: Vec<(Vec<i64>, Vec<f64>)>,
-    /// Gridding: (first row, last row) of each footprint, the band of each pixel row, and the
-    /// footprints of each band (flat, from `band_start[b]`).
+    /// Gridding: (first row, last row) of each footprint, per pixel row a count then its band,
+    /// and the footprints of each band (flat, from `band_start[b]`).
     rows: Vec<(u32, u32)>,
-    band_of_row: Vec<u32>,
+    row_band: Vec<u32>,
     band_start: Vec<usize>,
     band_items: Vec<u32>,
-    /// Kept quadrangles per latitude row (pruning fills it; gridding balances on it).
-    row_kept: Vec<usize>,
     /// Per-quadrangle footprint centroid [px], density [(P/L)/px^2] (NaN: not usable) and
     /// density gradient [(P/L)/px^3] (linear-density gridding only).
     centroid: Vec<[f64; 2]>,
@@ -319,8 +317,7 @@ fn render_in_pool(
         t.sampling = ms(t0);
 
         let t0 = Instant::now();
-        pruning::prune(&view, &trig, &mut buf.keep, &mut buf.row_kept);
-        stats.points_kept = buf.row_kept.iter().sum();
+        stats.points_kept = pruning::prune(&view, &trig, &mut buf.keep);
         t.pruning = ms(t0);
 
         let t0 = Instant::now();
@@ -554,59 +551,16 @@ fn grid(
             *r = (r0 as u32, r1 as u32);
         }
     });
-    let spans = rows
-        .iter()
-        .enumerate()
-        .filter(|(_, r)| r.0 != u32::MAX)
-        .map(|(j, &(r0, r1))| (j as u32, r0, r1));
 
-    // Bands of rows with about equal numbers of footprints starting in them.
-    let bands_wanted = (4 * threads.max(1)).min(gh);
-    let hist = &mut buf.band_of_row;
-    hist.clear();
-    hist.resize(gh, 0);
-    let mut n = 0;
-    for (_, r0, _) in spans.clone() {
-        hist[r0 as usize] += 1;
-        n += 1;
-    }
-    let mut bounds = vec![0usize];
-    let mut seen = 0usize;
-    for (r, &c) in hist.iter().enumerate() {
-        seen += c as usize;
-        if bounds.len() < bands_wanted && seen * bands_wanted >= n * bounds.len() && r + 1 < gh {
-            bounds.push(r + 1);
-        }
-    }
-    bounds.push(gh);
+    let bounds = plan_bands(
+        rows,
+        &mut buf.row_band,
+        &mut buf.band_start,
+        &mut buf.band_items,
+        gh,
+        threads,
+    );
     let bands = bounds.len() - 1;
-    // `hist` becomes the band of each row.
-    for b in 0..bands {
-        hist[bounds[b]..bounds[b + 1]].fill(b as u32);
-    }
-    let band_of = &*hist;
-    // Footprints of each band, flat, with offsets (a counting sort).
-    let starts = &mut buf.band_start;
-    starts.clear();
-    starts.resize(bands + 1, 0);
-    for (_, r0, r1) in spans.clone() {
-        for b in band_of[r0 as usize]..=band_of[r1 as usize] {
-            starts[b as usize + 1] += 1;
-        }
-    }
-    for b in 0..bands {
-        starts[b + 1] += starts[b];
-    }
-    let items = &mut buf.band_items;
-    items.clear();
-    items.resize(starts[bands], 0);
-    let mut fill = starts[..bands].to_vec();
-    for (j, r0, r1) in spans {
-        for b in band_of[r0 as usize]..=band_of[r1 as usize] {
-            items[fill[b as usize]] = j;
-            fill[b as usize] += 1;
-        }
-    }
 
     // Grid each band into its own rows.
     buf.scratch.resize_with(bands, Default::default);
@@ -651,4 +605,67 @@ fn grid(
             }
         });
     out
+}
+
+/// Cuts the `gh` pixel rows into bands with about equal numbers of footprints starting in
+/// them (`rows`: each footprint's first and last row, `u32::MAX` for none), a few per thread,
+/// and lists each band's footprints in `items` from `starts[b]` (a counting sort; a footprint
+/// reaching several bands is listed in each). Returns the bands' first rows and `gh`.
+fn plan_bands(
+    rows: &[(u32, u32)],
+    row_band: &mut Vec<u32>,
+    starts: &mut Vec<usize>,
+    items: &mut Vec<u32>,
+    gh: usize,
+    threads: usize,
+) -> Vec<usize> {
+    let spans = || {
+        rows.iter()
+            .enumerate()
+            .filter(|(_, r)| r.0 != u32::MAX)
+            .map(|(j, &(r0, r1))| (j as u32, r0 as usize, r1 as usize))
+    };
+    // Footprints starting in each row, then the band of each row.
+    row_band.clear();
+    row_band.resize(gh, 0);
+    let mut n = 0;
+    for (_, r0, _) in spans() {
+        row_band[r0] += 1;
+        n += 1;
+    }
+    let wanted = (4 * threads.max(1)).min(gh);
+    let mut bounds = vec![0usize];
+    let mut seen = 0usize;
+    for (r, &c) in row_band.iter().enumerate() {
+        seen += c as usize;
+        if bounds.len() < wanted && seen * wanted >= n * bounds.len() && r + 1 < gh {
+            bounds.push(r + 1);
+        }
+    }
+    bounds.push(gh);
+    let bands = bounds.len() - 1;
+    for b in 0..bands {
+        row_band[bounds[b]..bounds[b + 1]].fill(b as u32);
+    }
+    let band_range = |r0: usize, r1: usize| row_band[r0] as usize..=row_band[r1] as usize;
+    starts.clear();
+    starts.resize(bands + 1, 0);
+    for (_, r0, r1) in spans() {
+        for b in band_range(r0, r1) {
+            starts[b + 1] += 1;
+        }
+    }
+    for b in 0..bands {
+        starts[b + 1] += starts[b];
+    }
+    items.clear();
+    items.resize(starts[bands], 0);
+    let mut fill = starts[..bands].to_vec();
+    for (j, r0, r1) in spans() {
+        for b in band_range(r0, r1) {
+            items[fill[b]] = j;
+            fill[b] += 1;
+        }
+    }
+    bounds
 }

@@ -42,21 +42,21 @@ pub fn classify(view: &View, mid: DVec3, corners: [DVec3; 4]) -> u8 {
     }
 }
 
-/// Fills `keep` (row-major, latitude rows) with the class of every quadrangle, and `row_kept`
-/// with the number kept in each latitude row.
-pub fn prune(view: &View, trig: &GridTrig, keep: &mut Vec<u8>, row_kept: &mut Vec<usize>) {
+/// Fills `keep` (row-major, latitude rows) with the class of every quadrangle; returns how
+/// many are kept.
+pub fn prune(view: &View, trig: &GridTrig, keep: &mut Vec<u8>) -> usize {
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
     keep.clear();
     keep.resize(nl * nk, PRUNED);
-    row_kept.clear();
-    row_kept.resize(nk, 0);
     keep.par_chunks_mut(nl)
-        .zip(row_kept.par_iter_mut())
         .enumerate()
-        .for_each(|(k, (row, kept))| {
+        .map(|(k, row)| {
+            let mut kept = 0;
             for (i, out) in row.iter_mut().enumerate() {
                 *out = classify(view, trig.mid_dir(i, k), trig.corner_dirs(i, k));
-                *kept += (*out != PRUNED) as usize;
+                kept += (*out != PRUNED) as usize;
             }
-        });
+            kept
+        })
+        .sum()
 }

@@ -62,6 +62,43 @@ pub struct Slope {
     pub grad: [f64; 2],
 }
 
+/// The value a fragment of a footprint receives from its signed area `a` and first moments
+/// `(mx, my)` (same orientation as the footprint's signed area `total`; coordinates in the
+/// frame of `centroid`): `value a / total`, plus the gradient's first-moment part.
+#[derive(Clone, Copy)]
+struct Density {
+    k: f64,
+    sign: f64,
+    slope: Option<Slope>,
+}
+
+impl Density {
+    #[inline(always)]
+    fn new(value: f64, total: f64, slope: Option<&Slope>, origin: [f64; 2]) -> Density {
+        Density {
+            k: value / total,
+            sign: total.signum(),
+            slope: slope.map(|s| Slope {
+                centroid: [s.centroid[0] - origin[0], s.centroid[1] - origin[1]],
+                grad: s.grad,
+            }),
+        }
+    }
+
+    /// Uniform densities use only `a`; `moments` is called for linear ones.
+    #[inline(always)]
+    fn fragment(&self, a: f64, moments: impl FnOnce() -> (f64, f64)) -> f64 {
+        match &self.slope {
+            None => a * self.k,
+            Some(s) => {
+                let (mx, my) = moments();
+                let g = s.grad[0] * (mx - s.centroid[0] * a) + s.grad[1] * (my - s.centroid[1] * a);
+                a * self.k + g * self.sign
+            }
+        }
+    }
+}
+
 /// Grids `value` over the footprint `c` with the linear density of `slope` (uniform if `None`).
 ///
 /// The footprint's area and first moments in each pixel come from its edges alone (Green's
@@ -112,7 +149,13 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
     }
     let (nx, ny) = ((i1 - i0 + 1) as usize, (j1 - j0 + 1) as usize);
     if nx * ny <= PEEL_MAX_CELLS {
-        return splat_peel(c, (i0, i1, j0, j1), value, slope, acc);
+        splat_peel(
+            c,
+            (i0, i1, j0, j1),
+            Density::new(value, total, slope, [0.0; 2]),
+            acc,
+        );
+        return true;
     }
     // Local coordinates: pixel (i0, j0) is [0, 1) x [0, 1), which keeps the moments well
     // conditioned far from the image origin.
@@ -128,10 +171,8 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
         edge_moments(local[e], local[(e + 1) % 4], nx, ny, moments, cover);
     }
     // The edge sums are the moments of the region to the right of the boundary: minus the
-    // signed moments of the footprint. `k` and `total` carry the footprint's orientation.
-    let k = value / total;
-    let sign = total.signum();
-    let (cu, cv) = slope.map_or((0.0, 0.0), |s| (s.centroid[0] - ox, s.centroid[1] - oy));
+    // signed moments of the footprint.
+    let density = Density::new(value, total, slope, [ox, oy]);
     for j in 0..ny {
         let (mut band_h, mut band_v) = (0.0, 0.0);
         for i in 0..nx {
@@ -139,14 +180,12 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
             band_h += cover[cell];
             band_v += cover[cells + cell];
             let a = -(moments[3 * cell] + band_h);
-            let frag = match slope {
-                None => a * k,
-                Some(s) => {
-                    let mx = -(moments[3 * cell + 1] + band_h * (i as f64 + 0.5));
-                    let my = -(moments[3 * cell + 2] + band_v);
-                    a * k + (s.grad[0] * (mx - cu * a) + s.grad[1] * (my - cv * a)) * sign
-                }
-            };
+            let frag = density.fragment(a, || {
+                (
+                    -(moments[3 * cell + 1] + band_h * (i as f64 + 0.5)),
+                    -(moments[3 * cell + 2] + band_v),
+                )
+            });
             if frag > 0.0 {
                 acc.add(i0 + i as i64, j0 + j as i64, frag);
             }
@@ -203,28 +242,14 @@ fn split(p: &Poly, axis: usize, at: f64) -> (Poly, Poly) {
 fn splat_peel(
     c: &[[f64; 2]; 4],
     (i0, i1, j0, j1): (i64, i64, i64, i64),
-    value: f64,
-    slope: Option<&Slope>,
+    density: Density,
     acc: &mut Accum,
-) -> bool {
+) {
     let mut quad: Poly = ([[0.0; 2]; MAX_VERTS], 4);
     quad.0[..4].copy_from_slice(c);
-    let total = area_moments(c).0;
-    let k = value / total;
-    // Fragment value: uniform part plus the gradient's first-moment part. Orientation: `total`
-    // and every fragment's area and moments carry the same sign, hence `/ sign`.
-    let sign = total.signum();
     let frag = |p: &Poly| -> f64 {
-        match slope {
-            None => area_moments(verts(p)).0 * k,
-            Some(s) => {
-                let (a, mx, my) = area_moments(verts(p));
-                (a * k
-                    + (s.grad[0] * (mx - s.centroid[0] * a) + s.grad[1] * (my - s.centroid[1] * a))
-                        * sign)
-                    .max(0.0)
-            }
-        }
+        let (a, mx, my) = area_moments(verts(p));
+        density.fragment(a, || (mx, my)).max(0.0)
     };
     // Peel off one pixel column at a time, then one pixel row at a time from each column.
     let mut rest = quad;
@@ -253,7 +278,6 @@ fn splat_peel(
             }
         }
     }
-    true
 }
 
 /// Adds one directed edge `p -> q` (local pixel coordinates, inside `nx x ny` pixels) to the
@@ -331,8 +355,8 @@ fn edge_moments(
 mod tests {
     use super::*;
 
-    /// Grids a unit value over a 4 x 4 pixel grid; `None` when the footprint is refused.
-    fn grid_with(c: [[f64; 2]; 4], slope: Option<&Slope>) -> Option<Vec<f64>> {
+    /// Runs `splat` on a 4 x 4 pixel grid; the pixel values, `None` when it refused.
+    fn on_4x4(splat: impl FnOnce(&mut Accum) -> bool) -> Option<Vec<f64>> {
         let mut data = vec![0i64; 16];
         let mut cells = Vec::new();
         let scale = (1u64 << 40) as f64;
@@ -345,8 +369,12 @@ mod tests {
             h: 4,
             scale,
         };
-        splat_linear(&c, 1.0, slope, &mut acc)
-            .then(|| data.iter().map(|&x| x as f64 / scale).collect())
+        splat(&mut acc).then(|| data.iter().map(|&x| x as f64 / scale).collect())
+    }
+
+    /// Grids a unit value over a 4 x 4 pixel grid; `None` when the footprint is refused.
+    fn grid_with(c: [[f64; 2]; 4], slope: Option<&Slope>) -> Option<Vec<f64>> {
+        on_4x4(|acc| splat_linear(&c, 1.0, slope, acc))
     }
 
     fn grid(c: [[f64; 2]; 4]) -> Vec<f64> {
@@ -416,23 +444,16 @@ mod tests {
                 }),
             ] {
                 let edges = grid_with(c, slope.as_ref()).expect("footprint refused");
-                let mut data = vec![0i64; 16];
-                let mut cells = Vec::new();
-                let scale = (1u64 << 40) as f64;
-                let mut acc = Accum {
-                    data: &mut data,
-                    cells: &mut cells,
-                    x0: 0,
-                    y0: 0,
-                    w: 4,
-                    h: 4,
-                    scale,
-                };
-                assert!(splat_peel(&c, (0, 3, 0, 3), 1.0, slope.as_ref(), &mut acc));
+                let total = area_moments(&c).0;
+                let density = Density::new(1.0, total, slope.as_ref(), [0.0; 2]);
+                let peeled = on_4x4(|acc| {
+                    splat_peel(&c, (0, 3, 0, 3), density, acc);
+                    true
+                })
+                .unwrap();
                 let sum: f64 = edges.iter().sum();
                 assert!((sum - 1.0).abs() < 1e-9, "{sum}");
-                for (k, (&e, &p)) in edges.iter().zip(&data).enumerate() {
-                    let p = p as f64 / scale;
+                for (k, (&e, &p)) in edges.iter().zip(&peeled).enumerate() {
                     assert!((e - p).abs() < 1e-9, "{c:?} {slope:?} px {k}: {e} vs {p}");
                 }
             }

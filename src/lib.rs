@@ -16,10 +16,11 @@
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
+//! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU); off-screen target with read-back (windows: issue 4) |
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs |
-//! | [`app`] | the commands behind the binary: `render`, `bench` |
+//! | [`app`] | the commands behind the binary: `render`, `bench`, `calibrate` |
 //!
 //! # Data flow of one frame
 //!
@@ -36,7 +37,8 @@
 //!                                        │ signal [e-/s]
 //!   stimulator: F_eff = k·S (Eq. 60) → screen region (collimator) → calibration⁻¹ (+ dither)
 //!               → screen DN ─► simulated camera: true response → collimator → detector → DN
-//!               (the wgpu presenter that shows screen DN: issue 4, still to come)
+//!   display::Presenter: screen-region F_eff → LUT pass (same inverse, on the GPU) → screen DN
+//!               (off-screen with read-back; the fullscreen and preview windows: issue 4)
 //! ```
 //!
 //! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the

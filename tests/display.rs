@@ -2,9 +2,10 @@
 //! software Vulkan driver, lavapipe, which `.ci/run` installs): every screen pixel equals the
 //! CPU reference (`Stimulator::process`) within 1 LSB.
 
+mod common;
+use common::rendered_signal;
 use optistim::config;
 use optistim::display::Presenter;
-use optistim::render::Renderer;
 use optistim::stimulator::Stimulator;
 use optistim::stimulator::dither::Dither;
 use std::path::PathBuf;
@@ -16,14 +17,8 @@ fn check(bits: u32, dither: Dither) {
     st.dither = dither;
     let st = cfg.stimulator.clone().unwrap();
     let cam = &cfg.scene.camera;
-    let frame = Renderer::new(0)
-        .unwrap()
-        .render(&cfg.scene, &cfg.pose, &cfg.settings)
-        .unwrap();
-    let signal = cam
-        .detector
-        .signal(&frame.pl, cam.detector.signal_factor(&cfg.scene.sun));
-    let mut stim = Stimulator::new(&st, &cam.intrinsics, &cam.detector).unwrap();
+    let signal = rendered_signal(&cfg);
+    let stim = Stimulator::new(&st, &cam.intrinsics, &cam.detector).unwrap();
     let cpu = stim.process(&signal).unwrap();
 
     let mut presenter = Presenter::new_headless(bits).unwrap_or_else(|e| panic!("{e}"));

@@ -2,9 +2,10 @@
 //! F_eff -> screen DN through the calibration -> the simulated camera's image of the screen,
 //! compared with the image the flight camera would take in space.
 
+mod common;
+use common::rendered_signal;
 use optistim::config::{self, Config};
 use optistim::detector::noise::Noise;
-use optistim::render::Renderer;
 use optistim::stimulator::Stimulator;
 use optistim::stimulator::calibrate::{Provenance, SimulatedBench, calibrate};
 use optistim::stimulator::calibration::{Curve, Interp};
@@ -40,15 +41,11 @@ fn compare(cfg: &Config, calibration: Curve, truth: Curve) -> Comparison {
     let det = &cfg.scene.camera.detector;
     let intr = &cfg.scene.camera.intrinsics;
     let st = cfg.stimulator.as_ref().unwrap();
-    let frame = Renderer::new(0)
-        .unwrap()
-        .render(&cfg.scene, &cfg.pose, &cfg.settings)
-        .unwrap();
-    let signal = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
+    let signal = rendered_signal(cfg);
     let mut direct = Vec::new();
     det.expose(&signal, 0, &mut direct);
 
-    let mut stim = Stimulator::with_curve(st, intr, det, Arc::new(calibration));
+    let stim = Stimulator::with_curve(st, intr, det, Arc::new(calibration));
     let shown = stim.process(&signal).unwrap();
     assert_eq!(shown.clips.above_max, 0);
     let camera = SimulatedCamera::new(st, truth, intr, det);
@@ -131,11 +128,7 @@ fn a_replayed_curve_is_used_and_reported() {
     let det = &cfg.scene.camera.detector;
     let intr = &cfg.scene.camera.intrinsics;
     let st = cfg.stimulator.as_ref().unwrap();
-    let frame = Renderer::new(0)
-        .unwrap()
-        .render(&cfg.scene, &cfg.pose, &cfg.settings)
-        .unwrap();
-    let signal = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
+    let signal = rendered_signal(&cfg);
     let mut stim = Stimulator::new(st, intr, det).unwrap();
     let a = stim.process(&signal).unwrap();
     let old = stim.replay(Arc::new(wrong_curve()));

@@ -105,7 +105,7 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
         None => None,
         Some(st) => {
             let intr = &config.scene.camera.intrinsics;
-            let mut stim = Stimulator::new(st, intr, det)?;
+            let stim = Stimulator::new(st, intr, det)?;
             let frame_st = stim.process(&signal)?;
             let camera = SimulatedCamera::from_config(st, intr, det)?;
             let seen = camera.capture(&frame_st.screen_dn, config.pose.frame_id)?;

@@ -259,7 +259,7 @@ impl Validator<'_> {
             _ => scale,
         };
         let region =
-            Resampler::new([cam.width_px as usize, cam.height_px as usize], scale).region_px();
+            Resampler::region_px_for([cam.width_px as usize, cam.height_px as usize], scale);
         let screen_px = [screen[0] as usize, screen[1] as usize];
         let origin_px = match s.region_origin_px {
             Some(o) => [o[0] as usize, o[1] as usize],

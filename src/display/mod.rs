@@ -46,6 +46,16 @@ struct Target {
     bind_group: wgpu::BindGroup,
 }
 
+/// The inverse calibration on the GPU: F_eff at every quarter code, and its scalars.
+struct Lut {
+    texture: wgpu::Texture,
+    entries: u32,
+    code_lo: f32,
+    code_hi: f32,
+    f_lo: f32,
+    f_hi: f32,
+}
+
 pub struct Presenter {
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -54,8 +64,7 @@ pub struct Presenter {
     layout: wgpu::BindGroupLayout,
     format: wgpu::TextureFormat,
     params: wgpu::Buffer,
-    /// The inverse table and its scalars: (texture, entries, code_lo, code_hi, f_lo, f_hi).
-    table: Option<(wgpu::Texture, u32, f32, f32, f32, f32)>,
+    lut: Option<Lut>,
     target: Option<Target>,
     top: f32,
 }
@@ -155,7 +164,7 @@ impl Presenter {
             layout,
             format,
             params,
-            table: None,
+            lut: None,
             target: None,
             top: ((1u32 << screen_bits) - 1) as f32,
         })
@@ -190,19 +199,19 @@ impl Presenter {
         write_r32(&self.queue, &tex, &table, [n, 1]);
         let (code_lo, code_hi) = inverse.codes();
         let (f_lo, f_hi) = inverse.range();
-        self.table = Some((
-            tex,
-            n,
-            code_lo as f32,
-            code_hi as f32,
-            f_lo as f32,
-            f_hi as f32,
-        ));
+        self.lut = Some(Lut {
+            texture: tex,
+            entries: n,
+            code_lo: code_lo as f32,
+            code_hi: code_hi as f32,
+            f_lo: f_lo as f32,
+            f_hi: f_hi as f32,
+        });
         self.target = None; // its bind group names the old table
     }
 
     /// (Re)creates the per-screen resources when the screen or region size changes.
-    fn target(&mut self, screen_px: [u32; 2], region_px: [u32; 2]) -> &Target {
+    fn ensure_target(&mut self, screen_px: [u32; 2], region_px: [u32; 2]) {
         let fits = self
             .target
             .as_ref()
@@ -244,7 +253,11 @@ impl Presenter {
                 usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
                 mapped_at_creation: false,
             });
-            let table = &self.table.as_ref().expect("set_inverse before drawing").0;
+            let table = &self
+                .lut
+                .as_ref()
+                .expect("checked by draw_offscreen")
+                .texture;
             let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("lut"),
                 layout: &self.layout,
@@ -277,7 +290,6 @@ impl Presenter {
                 bind_group,
             });
         }
-        self.target.as_ref().expect("just made")
     }
 
     /// Draws one frame off-screen: `feff_region` is the screen region's F_eff (region size,
@@ -299,10 +311,8 @@ impl Presenter {
         }
         let mut t = PresentTimings::default();
         let t0 = Instant::now();
-        let (_, n, code_lo, code_hi, f_lo, f_hi) = *self
-            .table
-            .as_ref()
-            .map(|x| (0, x.1, x.2, x.3, x.4, x.5))
+        let lut = self
+            .lut
             .as_ref()
             .ok_or_else(|| DisplayError::Device("no calibration uploaded (set_inverse)".into()))?;
         let screen = [config.screen_px[0] as u32, config.screen_px[1] as u32];
@@ -312,19 +322,19 @@ impl Presenter {
             config.origin_px[1] as u32,
             region[0],
             region[1],
-            code_lo.to_bits(),
+            lut.code_lo.to_bits(),
             self.top.to_bits(),
-            f_lo.to_bits(),
-            f_hi.to_bits(),
-            n,
+            lut.f_lo.to_bits(),
+            lut.f_hi.to_bits(),
+            lut.entries,
             (INVERSE_SUBSTEPS as f32).to_bits(),
             u32::from(config.dither == Dither::Ordered),
-            code_hi.to_bits(),
+            lut.code_hi.to_bits(),
         ];
         let bytes: Vec<u8> = params.iter().flat_map(|x| x.to_le_bytes()).collect();
         self.queue.write_buffer(&self.params, 0, &bytes);
         let data: Vec<f32> = feff_region.iter().map(|&x| x as f32).collect();
-        self.target(screen, region);
+        self.ensure_target(screen, region);
         let target = self.target.as_ref().expect("made above");
         write_r32(&self.queue, &target.feff, &data, region);
         t.upload = ms(t0);

@@ -23,8 +23,8 @@ pub struct Capture {
 }
 
 pub struct SimulatedCamera {
-    true_response: Curve,
-    levels: u32,
+    /// F_eff the screen emits at each code (its true response, sampled once).
+    emitted_per_code: Vec<f64>,
     camera_px: [usize; 2],
     screen_px: [usize; 2],
     origin_px: [usize; 2],
@@ -58,8 +58,7 @@ impl SimulatedCamera {
             })
             .collect();
         SimulatedCamera {
-            true_response,
-            levels: config.levels(),
+            emitted_per_code: emitted_per_code(&true_response, config.levels()),
             camera_px,
             screen_px: config.screen_px,
             origin_px: config.origin_px,
@@ -114,12 +113,7 @@ impl SimulatedCamera {
         }
         let [rw, rh] = self.resampler.region_px();
         let [ox, oy] = self.origin_px;
-        let top = (self.levels - 1) as f64;
-        let full = self.true_response.dn_full_scale;
-        // The screen's emission per code, once: a frame has at most `levels` distinct codes.
-        let table: Vec<f64> = (0..self.levels)
-            .map(|c| self.true_response.feff_at(0, c as f64 / top * full))
-            .collect();
+        let table = &self.emitted_per_code;
         let mut emitted = Vec::with_capacity(rw * rh);
         for r in 0..rh {
             let row = &screen_dn[(oy + r) * sw + ox..(oy + r) * sw + ox + rw];
@@ -139,4 +133,12 @@ impl SimulatedCamera {
             dn,
         })
     }
+}
+
+/// F_eff a screen with response `curve` emits at each of its `levels` codes.
+fn emitted_per_code(curve: &Curve, levels: u32) -> Vec<f64> {
+    let top = (levels - 1) as f64;
+    (0..levels)
+        .map(|c| curve.feff_at(0, c as f64 / top * curve.dn_full_scale))
+        .collect()
 }

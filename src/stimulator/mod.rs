@@ -106,7 +106,6 @@ pub struct Stimulator {
     k: f64,
     camera_px: [usize; 2],
     resampler: Resampler,
-    scratch: Vec<f64>,
 }
 
 impl Stimulator {
@@ -139,7 +138,6 @@ impl Stimulator {
             k: feff_factor(detector, intrinsics),
             camera_px,
             resampler: Resampler::new(camera_px, config.scale),
-            scratch: Vec::new(),
         }
     }
 
@@ -168,7 +166,7 @@ impl Stimulator {
     }
 
     /// One frame: `signal_e_per_s` is the flight camera's signal image (row-major).
-    pub fn process(&mut self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
+    pub fn process(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
         let want = self.camera_px[0] * self.camera_px[1];
         if signal_e_per_s.len() != want {
             return Err(StimulatorError::ImageSize {
@@ -183,10 +181,11 @@ impl Stimulator {
         t.feff = ms(t0);
 
         let t0 = Instant::now();
-        self.resampler.to_screen(&feff_w_m2, &mut self.scratch);
+        let mut region_feff_w_m2 = Vec::new();
+        self.resampler.to_screen(&feff_w_m2, &mut region_feff_w_m2);
         // The screen emits F_eff / T so that the camera, behind the collimator, gets F_eff.
         let inv_t = 1.0 / self.config.collimator_transmittance;
-        self.scratch.iter_mut().for_each(|f| *f *= inv_t);
+        region_feff_w_m2.iter_mut().for_each(|f| *f *= inv_t);
         t.resample = ms(t0);
 
         let t0 = Instant::now();
@@ -194,7 +193,7 @@ impl Stimulator {
         let mut region = Vec::new();
         let clips = self
             .inverse
-            .apply(&self.scratch, rw, self.config.dither, &mut region);
+            .apply(&region_feff_w_m2, rw, self.config.dither, &mut region);
         let [sw, sh] = self.config.screen_px;
         let [ox, oy] = self.config.origin_px;
         let mut screen_dn = vec![0u16; sw * sh];
@@ -205,7 +204,7 @@ impl Stimulator {
         t.invert = ms(t0);
         Ok(StimulatorFrame {
             feff_w_m2,
-            region_feff_w_m2: self.scratch.clone(),
+            region_feff_w_m2,
             screen_dn,
             clips,
             calibration_id: self.curve.id.clone(),

@@ -28,10 +28,7 @@ impl Resampler {
     /// smallest that covers the camera frame: `ceil(camera / scale)` screen pixels.
     pub fn new(camera_px: [usize; 2], scale: [f64; 2]) -> Resampler {
         let identity = scale == [1.0, 1.0];
-        let region_px = [0, 1].map(|a| {
-            // A hair under the exact quotient so that 1024 / (1024 / 512) is 512, not 513.
-            ((camera_px[a] as f64 / scale[a]) * (1.0 - 1e-12)).ceil() as usize
-        });
+        let region_px = Resampler::region_px_for(camera_px, scale);
         let weights = [0, 1].map(|a| {
             (0..region_px[a])
                 .map(|j| {
@@ -56,6 +53,12 @@ impl Resampler {
 
     pub fn region_px(&self) -> [usize; 2] {
         self.region_px
+    }
+
+    /// The region, in screen pixels, that covers a camera frame: `ceil(camera / scale)`.
+    pub fn region_px_for(camera_px: [usize; 2], scale: [f64; 2]) -> [usize; 2] {
+        // A hair under the exact quotient so that 1024 / (1024 / 512) is 512, not 513.
+        [0, 1].map(|a| ((camera_px[a] as f64 / scale[a]) * (1.0 - 1e-12)).ceil() as usize)
     }
 
     /// Camera-grid F_eff -> screen-region F_eff: each screen pixel gets the area-weighted mean

@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 use optistim::config::{self, Config};
+use optistim::render::Renderer;
 
 pub const AU: f64 = 1.495978707e11;
 pub const R_MOON: f64 = 1737400.0;
@@ -100,4 +101,14 @@ camera_position_m = {cam:?}
     pub fn config(&self) -> Config {
         config::parse(&self.toml(), "<test>").unwrap_or_else(|e| panic!("{e}"))
     }
+}
+
+/// The flight camera's signal image [e-/s] for the scene and pose of `cfg`.
+pub fn rendered_signal(cfg: &Config) -> Vec<f64> {
+    let det = &cfg.scene.camera.detector;
+    let frame = Renderer::new(0)
+        .unwrap()
+        .render(&cfg.scene, &cfg.pose, &cfg.settings)
+        .unwrap();
+    det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun))
 }

@@ -107,7 +107,7 @@ fn run() -> anyhow::Result<()> {
         }
         Command::Calibrate { scene, steps, out } => {
             let cfg = config::load(&scene)?;
-            let run = app::calibrate::run(&cfg, steps, &out)?;
+            let run = app::calibrate::run(&cfg, &scene.display().to_string(), steps, &out)?;
             println!("{}", serde_json::to_string(&run)?);
         }
     }

@@ -5,16 +5,21 @@
 
 use super::AppError;
 use crate::config::Config;
-use crate::stimulator::StimulatorError;
 use crate::stimulator::calibrate::{CalibrationRun, Provenance, SimulatedBench, calibrate};
 use crate::stimulator::camera::SimulatedCamera;
 use std::path::Path;
 
 /// Runs the ramp and writes the curve to `out`.
-pub fn run(config: &Config, steps: usize, out: &Path) -> Result<CalibrationRun, AppError> {
-    let st = config.stimulator.as_ref().ok_or_else(|| {
-        StimulatorError::Measurement("the scene has no [stimulator] section".into())
-    })?;
+pub fn run(
+    config: &Config,
+    scene_name: &str,
+    steps: usize,
+    out: &Path,
+) -> Result<CalibrationRun, AppError> {
+    let st = config
+        .stimulator
+        .as_ref()
+        .ok_or_else(|| AppError::NoStimulator(scene_name.to_string()))?;
     let cam = &config.scene.camera;
     let camera = SimulatedCamera::from_config(st, &cam.intrinsics, &cam.detector)?;
     let mut bench = SimulatedBench::new(camera, st.screen_px);

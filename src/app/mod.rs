@@ -16,6 +16,8 @@ pub enum AppError {
     Stimulator(#[from] crate::stimulator::StimulatorError),
     #[error(transparent)]
     Trajectory(#[from] crate::trajectory::TrajectoryError),
+    #[error("{0}: the scene has no [stimulator] section")]
+    NoStimulator(String),
     #[error("{path}: cannot create the output folder: {source}")]
     OutDir {
         path: String,

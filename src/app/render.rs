@@ -35,7 +35,7 @@ pub struct RenderSummary {
 pub struct StimulatorSummary {
     pub calibration_id: String,
     pub calibration_sha256: String,
-    /// Pixels whose F_eff fell below the screen's dark level or above its maximum.
+    /// Pixels with no light (`black`), below the screen's dark level or above its maximum.
     pub clipped: ClipCounts,
     /// Total F_eff over the camera frame [W/m^2 summed over pixels].
     pub total_feff_w_m2: f64,

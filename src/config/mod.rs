@@ -176,15 +176,11 @@ impl Validator<'_> {
         })
     }
 
-    /// A path in the file, relative to the file's folder.
+    /// A path in the file, relative to the file's folder (`join` keeps an absolute one).
     fn path(&self, p: &str) -> PathBuf {
-        let p = Path::new(p);
-        if p.is_absolute() {
-            return p.to_path_buf();
-        }
         Path::new(self.file)
             .parent()
-            .map_or_else(|| p.to_path_buf(), |d| d.join(p))
+            .map_or_else(|| PathBuf::from(p), |d| d.join(p))
     }
 
     fn stimulator(&self, s: &RawStimulator, cam: &Intrinsics) -> R<StimulatorConfig> {

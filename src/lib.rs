@@ -16,11 +16,12 @@
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
-//! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU); off-screen target with read-back (windows: issue 4) |
+//! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
+//! | [`pipeline`] | one pose's way to the screen: render -> signal -> stimulator -> simulated camera, timed per stage |
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs |
-//! | [`app`] | the commands behind the binary: `render`, `bench`, `calibrate` |
+//! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate` |
 //!
 //! # Data flow of one frame
 //!
@@ -38,7 +39,7 @@
 //!   stimulator: F_eff = k·S (Eq. 60) → screen region (collimator) → calibration⁻¹ (+ dither)
 //!               → screen DN ─► simulated camera: true response → collimator → detector → DN
 //!   display::Presenter: screen-region F_eff → LUT pass (same inverse, on the GPU) → screen DN
-//!               (off-screen with read-back; the fullscreen and preview windows: issue 4)
+//!               (off-screen with read-back | fullscreen window | preview window)
 //! ```
 //!
 //! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the
@@ -54,6 +55,7 @@ pub mod detector;
 pub mod display;
 pub mod geometry;
 pub mod io;
+pub mod pipeline;
 pub mod radiometry;
 pub mod render;
 pub mod scene;

@@ -48,6 +48,34 @@ enum Command {
         #[arg(long)]
         per_frame: Option<PathBuf>,
     },
+    /// Time the stimulator's per-frame path on the GPU: F_eff -> screen region -> LUT pass ->
+    /// presented off-screen and read back; per stage, with the CPU reference's agreement.
+    BenchDisplay {
+        /// Scene TOML with a [stimulator] section.
+        #[arg(long, default_value = "config/stimulator.toml")]
+        scene: PathBuf,
+        /// Screen size WxH overriding the scene's (the image centred, one-to-one).
+        #[arg(long, default_value = "1024x1024")]
+        screen: String,
+        #[arg(long, default_value_t = 50)]
+        frames: usize,
+    },
+    /// Show the scene's frame on the stimulator's monitor (borderless fullscreen, 1:1 pixels,
+    /// vsync) and/or in a preview window; one JSON line per presented frame.
+    Show {
+        /// Scene TOML with a [stimulator] section.
+        scene: PathBuf,
+        /// The stimulator's monitor, by index or by (part of) its name (default: 0, unless only
+        /// --preview is given).
+        #[arg(long)]
+        monitor: Option<String>,
+        /// Also open the operator's preview window.
+        #[arg(long)]
+        preview: bool,
+        /// Close after this many seconds (default: when the window is closed).
+        #[arg(long)]
+        seconds: Option<f64>,
+    },
     /// Measure the screen's calibration curve on the bench of the scene's [stimulator]
     /// section (the simulated camera) and write it as CSV (calibration/README.md).
     Calibrate {
@@ -105,6 +133,41 @@ fn run() -> anyhow::Result<()> {
             })?;
             println!("{}", serde_json::to_string(&report)?);
         }
+        Command::BenchDisplay {
+            scene,
+            screen,
+            frames,
+        } => {
+            let cfg = config::load(&scene)?;
+            let screen_px = parse_size(&screen)
+                .with_context(|| format!("--screen {screen}: expected WxH, e.g. 1024x1024"))?;
+            let report = app::bench::run_display(
+                &cfg,
+                &scene.display().to_string(),
+                Some(screen_px),
+                frames,
+            )?;
+            println!("{}", serde_json::to_string(&report)?);
+        }
+        Command::Show {
+            scene,
+            monitor,
+            preview,
+            seconds,
+        } => {
+            let cfg = config::load(&scene)?;
+            let options = app::show::ShowOptions {
+                monitor: monitor.map(|m| m.parse().expect("infallible")),
+                preview,
+                seconds,
+            };
+            app::show::run(&cfg, &scene.display().to_string(), options, |p| {
+                use std::io::Write;
+                let mut out = std::io::stdout().lock();
+                let _ = writeln!(out, "{}", serde_json::to_string(&p).unwrap_or_default());
+                let _ = out.flush();
+            })?;
+        }
         Command::Calibrate { scene, steps, out } => {
             let cfg = config::load(&scene)?;
             let run = app::calibrate::run(&cfg, &scene.display().to_string(), steps, &out)?;
@@ -114,7 +177,19 @@ fn run() -> anyhow::Result<()> {
     Ok(())
 }
 
+fn parse_size(s: &str) -> Option<[usize; 2]> {
+    let (w, h) = s.split_once('x')?;
+    Some([w.trim().parse().ok()?, h.trim().parse().ok()?])
+}
+
 fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "optistim=info,winit=error,warn".into()),
+        )
+        .init();
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -22,7 +22,7 @@ fn check(bits: u32, dither: Dither) {
     let cpu = stim.process(&signal).unwrap();
 
     let mut presenter = Presenter::new_headless(bits).unwrap_or_else(|e| panic!("{e}"));
-    presenter.set_inverse(&stim.curve().inverse(0, st.levels()));
+    presenter.set_inverse(stim.inverse()).unwrap();
     let region = stim.resampler().region_px();
     let mut gpu = Vec::new();
     let mut times = Vec::new();

@@ -127,3 +127,138 @@ pub fn run(
         slowest_frame: slowest.1,
     })
 }
+
+/// `optistim bench-display`: the stimulator's per-frame path after rendering, F_eff -> screen
+/// region -> GPU LUT pass -> presented (off-screen, read back), timed per stage.
+#[derive(Debug, Serialize)]
+pub struct DisplayBenchReport {
+    pub adapter: String,
+    pub screen_px: [usize; 2],
+    pub region_px: [usize; 2],
+    pub screen_bits: u32,
+    pub frames: usize,
+    /// The GPU table's interpolation error against the exact inverse [codes].
+    pub table_max_code_error: f64,
+    /// Median time per stage [ms]: `feff`, `resample` and `clip_count` on the CPU, then
+    /// `upload`, `lut_pass` and `readback` (which waits for the GPU) of the presenter; `total`
+    /// is their sum per frame. `cpu_reference` is the whole chain on the CPU
+    /// (`Stimulator::process`), for comparison.
+    pub median_ms: serde_json::Value,
+    pub p99_total_ms: f64,
+    pub max_total_ms: f64,
+    /// Pixels whose GPU code differs from the CPU reference by 0, 1, and more than 1 LSB
+    /// (last frame).
+    pub lsb_equal: usize,
+    pub lsb_one: usize,
+    pub lsb_worse: usize,
+}
+
+/// Times `frames` passes of the scene's stimulator frame through the GPU presenter, with the
+/// screen set to `screen_px` when given (the image centred, one-to-one).
+pub fn run_display(
+    config: &Config,
+    scene_name: &str,
+    screen_px: Option<[usize; 2]>,
+    frames: usize,
+) -> Result<DisplayBenchReport, AppError> {
+    let mut config = config.clone();
+    let st = config
+        .stimulator
+        .as_mut()
+        .ok_or_else(|| AppError::NoStimulator(scene_name.to_string()))?;
+    if let Some(s) = screen_px {
+        let cam = &config.scene.camera.intrinsics;
+        let cam = [cam.width_px as usize, cam.height_px as usize];
+        st.screen_px = s;
+        st.scale = [1.0, 1.0];
+        st.origin_px = [
+            s[0].saturating_sub(cam[0]) / 2,
+            s[1].saturating_sub(cam[1]) / 2,
+        ];
+    }
+    let region = crate::stimulator::screen::Resampler::region_px_for(
+        [
+            config.scene.camera.intrinsics.width_px as usize,
+            config.scene.camera.intrinsics.height_px as usize,
+        ],
+        st.scale,
+    );
+    if (0..2).any(|a| st.origin_px[a] + region[a] > st.screen_px[a]) {
+        return Err(AppError::Stimulator(
+            crate::stimulator::StimulatorError::Measurement(format!(
+                "the {region:?} px image region does not fit the {:?} px screen",
+                st.screen_px
+            )),
+        ));
+    }
+    let st = st.clone();
+    let mut maker = crate::pipeline::FrameMaker::new(&config)?;
+    let signal = maker.make(&config.pose, false)?.signal_e_per_s;
+    let stim = maker.stimulator().expect("has a [stimulator] section");
+    let region_px = stim.resampler().region_px();
+    let mut presenter = crate::display::Presenter::new_headless(st.screen_bits)?;
+    presenter.set_inverse(stim.inverse())?;
+    let mut screen = Vec::new();
+    let mut rows: Vec<[f64; 8]> = Vec::with_capacity(frames);
+    for _ in 0..frames.max(1) + 1 {
+        let f = stim.prepare(&signal)?;
+        let t = presenter.draw_offscreen(&st, region_px, &f.region_feff_w_m2, &mut screen)?;
+        let s = &f.timings_ms;
+        let total = s.feff + s.resample + s.invert + t.total();
+        let t0 = Instant::now();
+        let cpu = stim.process(&signal)?;
+        let cpu_ms = t0.elapsed().as_secs_f64() * 1e3;
+        rows.push([
+            s.feff, s.resample, s.invert, t.upload, t.lut_pass, t.readback, total, cpu_ms,
+        ]);
+        let _ = cpu;
+    }
+    rows.remove(0); // the first pass builds pipelines and targets
+    let median = |k: usize| quantile(rows.iter().map(|r| r[k]).collect(), 0.5);
+    let names = [
+        "feff",
+        "resample",
+        "clip_count",
+        "upload",
+        "lut_pass",
+        "readback",
+        "total",
+        "cpu_reference",
+    ];
+    let median_ms = names
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (n.to_string(), median(k).into()))
+        .collect::<serde_json::Map<_, _>>();
+    let cpu = stim.process(&signal)?.screen_dn;
+    let (mut equal, mut one, mut worse) = (0, 0, 0);
+    for (&g, &c) in screen.iter().zip(&cpu) {
+        match g.abs_diff(c) {
+            0 => equal += 1,
+            1 => one += 1,
+            _ => worse += 1,
+        }
+    }
+    let totals: Vec<f64> = rows.iter().map(|r| r[6]).collect();
+    Ok(DisplayBenchReport {
+        adapter: presenter.adapter(),
+        screen_px: st.screen_px,
+        region_px,
+        screen_bits: st.screen_bits,
+        frames: rows.len(),
+        table_max_code_error: presenter.table_error(),
+        median_ms: serde_json::Value::Object(median_ms),
+        p99_total_ms: quantile(totals.clone(), 0.99),
+        max_total_ms: quantile(totals, 1.0),
+        lsb_equal: equal,
+        lsb_one: one,
+        lsb_worse: worse,
+    })
+}
+
+fn quantile(mut v: Vec<f64>, p: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(((v.len().max(1) - 1) as f64 * p).round() as usize)
+        .copied()
+        .unwrap_or(0.0)
+}

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod render;
+pub mod show;
 
 #[derive(Debug, thiserror::Error)]
 pub enum AppError {
@@ -16,6 +17,10 @@ pub enum AppError {
     Stimulator(#[from] crate::stimulator::StimulatorError),
     #[error(transparent)]
     Trajectory(#[from] crate::trajectory::TrajectoryError),
+    #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
+    #[error(transparent)]
+    Display(#[from] crate::display::DisplayError),
     #[error("{0}: the scene has no [stimulator] section")]
     NoStimulator(String),
     #[error("{path}: cannot create the output folder: {source}")]

@@ -1,36 +1,44 @@
-// The LUT pass: F_eff per camera pixel (R32Float, the screen region) -> screen DN code through
-// the inverse calibration table (F_eff at every quarter code, increasing; a width x 1 2D
-// texture, since a 1D texture read back as 0 on the GL backend), rounded or Bayer-dithered,
-// written as code / top into every colour channel. The same arithmetic as
-// stimulator::calibration::Inverse::apply.
+// The LUT pass: F_eff per screen-region pixel (f32, row-major) -> screen DN code through the inverse
+// calibration as a direct table: fractional codes at F = f_lo + (f_hi - f_lo) u^4 for u
+// uniform in [0, 1] (dense at the dark end), read with one interpolation, no search. F_eff
+// and the table are storage buffers: plain loads, where a software rasteriser's texture
+// fetches cost more than the rest of the pass.
+// The code is rounded or Bayer-dithered and written as code / top into every colour channel
+// of a display target, or as the integer code into the off-screen buffer (compute).
+// The same arithmetic as stimulator::calibration::Inverse::apply, to within the table's
+// interpolation error (checked when the table is built, display::DirectTable).
 
 struct Params {
     region_origin: vec2<u32>,
     region_size: vec2<u32>,
+    // Screen pixels per target pixel: 1 on the stimulator's screen and off-screen, more in a
+    // preview window smaller than the screen.
+    view_scale: vec2<f32>,
     code_lo: f32,
+    code_hi: f32,
     top: f32,
     f_lo: f32,
     f_hi: f32,
     n_table: u32,
-    substeps: f32,
+    // 1 / (f_hi - f_lo)
+    inv_span: f32,
     dither: u32,
-    code_hi: f32,
+    // The target's size [px].
+    target_px: vec2<u32>,
 };
 
-@group(0) @binding(0) var feff: texture_2d<f32>;
-@group(0) @binding(1) var table: texture_2d<f32>;
+@group(0) @binding(0) var<storage, read> feff: array<f32>;
+@group(0) @binding(1) var<storage, read> table: array<f32>;
 @group(0) @binding(2) var<uniform> p: Params;
 
-const BAYER8 = array<u32, 64>(
-    0u, 32u, 8u, 40u, 2u, 34u, 10u, 42u,
-    48u, 16u, 56u, 24u, 50u, 18u, 58u, 26u,
-    12u, 44u, 4u, 36u, 14u, 46u, 6u, 38u,
-    60u, 28u, 52u, 20u, 62u, 30u, 54u, 22u,
-    3u, 35u, 11u, 43u, 1u, 33u, 9u, 41u,
-    51u, 19u, 59u, 27u, 49u, 17u, 57u, 25u,
-    15u, 47u, 7u, 39u, 13u, 45u, 5u, 37u,
-    63u, 31u, 55u, 23u, 61u, 29u, 53u, 21u,
-);
+// The 8 x 8 Bayer index at (x, y), from its bits (interleaved x^y and y, reversed): the
+// same matrix as stimulator::dither, without a dynamically indexed constant array (which
+// software rasterisers copy into every invocation).
+fn bayer8(x: u32, y: u32) -> u32 {
+    let a = x ^ y;
+    return ((a & 1u) << 5u) | ((y & 1u) << 4u) | ((a & 2u) << 2u) | ((y & 2u) << 1u)
+        | ((a & 4u) >> 1u) | ((y & 4u) >> 2u);
+}
 
 @vertex
 fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
@@ -40,47 +48,62 @@ fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
     return vec4<f32>(x, y, 0.0, 1.0);
 }
 
-fn entry(k: u32) -> f32 {
-    return textureLoad(table, vec2<i32>(i32(k), 0), 0).r;
-}
 
-// The fractional code showing f: first table entry above f by bisection, then linear
-// interpolation inside the quarter code.
+// The fractional code showing f (f_lo <= f <= f_hi).
 fn code_of(f: f32) -> f32 {
-    var lo = 0u;
-    var hi = p.n_table;
-    loop {
-        if lo >= hi { break; }
-        let mid = (lo + hi) / 2u;
-        if entry(mid) <= f { lo = mid + 1u; } else { hi = mid; }
-    }
-    let k = lo;
-    if k == 0u { return p.code_lo; }
-    if k == p.n_table { return p.code_hi; }
-    let a = entry(k - 1u);
-    let b = entry(k);
-    return p.code_lo + (f32(k - 1u) + (f - a) / (b - a)) / p.substeps;
+    let u = sqrt(sqrt(clamp((f - p.f_lo) * p.inv_span, 0.0, 1.0)));
+    let x = u * f32(p.n_table - 1u);
+    let k = min(u32(x), p.n_table - 2u);
+    return mix(table[k], table[k + 1u], x - f32(k));
 }
 
-@fragment
-fn fs_main(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
-    let px = vec2<u32>(floor(pos.xy));
-    if any(px < p.region_origin) || any(px >= p.region_origin + p.region_size) {
-        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+// The screen code at fragment position `pos` (0 outside the image region).
+fn screen_code(pos: vec4<f32>) -> f32 {
+    // Left of or above the region, q wraps around to a large value.
+    let q = vec2<u32>(floor(pos.xy * p.view_scale)) - p.region_origin;
+    if q.x >= p.region_size.x || q.y >= p.region_size.y {
+        return 0.0;
     }
-    let q = px - p.region_origin;
-    let f = textureLoad(feff, vec2<i32>(q), 0).r;
+    let f = feff[q.y * p.region_size.x + q.x];
     var c = p.code_lo;
     if f > p.f_hi {
         c = p.code_hi;
     } else if f >= p.f_lo {
-        let x = code_of(f);
         var t = 0.5;
         if p.dither == 1u {
-            t = (f32(BAYER8[(q.y & 7u) * 8u + (q.x & 7u)]) + 0.5) / 64.0;
+            t = (f32(bayer8(q.x, q.y)) + 0.5) / 64.0;
         }
-        c = clamp(floor(x + t), p.code_lo, p.code_hi);
+        c = clamp(floor(code_of(f) + t), p.code_lo, p.code_hi);
     }
-    let v = c / p.top;
+    return c;
+}
+
+// Display targets (unorm colour): code / top in every colour channel.
+@fragment
+fn fs_main(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+    let v = screen_code(pos) / p.top;
     return vec4<f32>(v, v, v, 1.0);
+}
+
+// The off-screen target: the codes themselves, two 16-bit codes per word (low half first),
+// `(target_px.x + 1) / 2` words per row. Each invocation fills two words (four pixels):
+// on a software adapter the per-invocation overhead is as large as the LUT itself.
+@group(1) @binding(0) var<storage, read_write> codes: array<u32>;
+
+@compute @workgroup_size(64, 1, 1)
+fn cs_codes(@builtin(global_invocation_id) id: vec3<u32>) {
+    let words = (p.target_px.x + 1u) / 2u;
+    if 2u * id.x >= words || id.y >= p.target_px.y {
+        return;
+    }
+    let y = f32(id.y) + 0.5;
+    for (var k = 0u; k < 2u; k++) {
+        let w = 2u * id.x + k;
+        if w < words {
+            let x = f32(2u * w) + 0.5;
+            let a = u32(screen_code(vec4<f32>(x, y, 0.0, 1.0)));
+            let b = u32(screen_code(vec4<f32>(x + 1.0, y, 0.0, 1.0)));
+            codes[id.y * words + w] = a | (b << 16u);
+        }
+    }
 }

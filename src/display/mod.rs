@@ -1,13 +1,16 @@
 //! The presenter: one wgpu device and queue, and the LUT pass that turns the screen region's
-//! F_eff into screen DN codes on the GPU (`lut.wgsl`: the same bisection, interpolation and
-//! dithering as [`crate::stimulator::calibration::Inverse::apply`], in f32).
+//! F_eff into screen DN codes on the GPU (`lut.wgsl`: the inverse calibration as a direct
+//! table, dithering as [`crate::stimulator::calibration::Inverse::apply`], in f32).
 //!
-//! Targets: an off-screen texture read back to memory (here; tests and headless runs). The
-//! borderless fullscreen window and the operator's preview window are still to come (issue 4).
+//! The same pass draws into three kinds of target: an off-screen texture read back to memory
+//! ([`Presenter::draw_offscreen`]; tests, headless runs), and the windows of [`window`]: a
+//! borderless fullscreen window on the stimulator's monitor and the operator's preview.
 //! The presenter never runs on the async runtime; `pollster` blocks on wgpu's futures.
 
+pub mod window;
+
 use crate::stimulator::StimulatorConfig;
-use crate::stimulator::calibration::{INVERSE_SUBSTEPS, Inverse};
+use crate::stimulator::calibration::Inverse;
 use crate::stimulator::dither::Dither;
 use serde::Serialize;
 use std::time::Instant;
@@ -25,9 +28,41 @@ pub enum DisplayError {
     Readback(String),
     #[error("F_eff region has {got} values, the region {want}")]
     RegionSize { got: usize, want: usize },
+    #[error("no calibration uploaded yet (Presenter::set_inverse)")]
+    NoCalibration,
+    #[error("no frame uploaded yet (Presenter::upload)")]
+    NoFrame,
+    #[error(
+        "the inverse calibration cannot be tabulated to {max_code_error} code: {got:.3} code \
+         at {entries} entries (a curve with a near-vertical step?)"
+    )]
+    Table {
+        got: f64,
+        entries: usize,
+        max_code_error: f64,
+    },
+    #[error("window: {0}")]
+    Window(String),
+    #[error("monitor {wanted} not found; monitors: {available} (name them by index or by name)")]
+    NoMonitor { wanted: String, available: String },
+    #[error(
+        "monitor {monitor} is {got:?} px but the [stimulator] screen is {want:?} px: 1:1 \
+         pixels need the screen_resolution_px of the monitor"
+    )]
+    MonitorSize {
+        monitor: String,
+        got: [u32; 2],
+        want: [usize; 2],
+    },
+    #[error(
+        "the window's surface offers no {bits}-bit format (offers {offered}); set \
+         screen_bit_depth to match the display"
+    )]
+    SurfaceFormat { bits: u32, offered: String },
 }
 
-/// Time per presenter stage [ms].
+/// Time per presenter stage [ms]. `readback` includes waiting for the GPU to finish the pass;
+/// on a window target it is the time to hand the frame to the compositor.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct PresentTimings {
     pub upload: f64,
@@ -35,20 +70,67 @@ pub struct PresentTimings {
     pub readback: f64,
 }
 
-/// Per-screen GPU resources.
-struct Target {
-    screen_px: [u32; 2],
-    region_px: [u32; 2],
-    feff: wgpu::Texture,
-    out: wgpu::Texture,
-    readback: wgpu::Buffer,
-    padded_row: u32,
-    bind_group: wgpu::BindGroup,
+impl PresentTimings {
+    pub fn total(&self) -> f64 {
+        self.upload + self.lut_pass + self.readback
+    }
 }
 
-/// The inverse calibration on the GPU: F_eff at every quarter code, and its scalars.
+/// The largest interpolation error of the direct table, in codes, that
+/// [`DirectTable::build`] accepts: far below the ±1 LSB the pass is held to.
+pub const MAX_TABLE_CODE_ERROR: f64 = 0.02;
+/// The direct table's first size; it doubles up to 16 times this.
+const TABLE_ENTRIES: usize = 4096;
+
+/// The inverse calibration tabulated for the GPU: the fractional code at
+/// `F = f_lo + (f_hi - f_lo) u^4`, `u = i / (n - 1)`. The fourth power puts most entries at the
+/// dark end, where a gamma-like screen's code changes fastest with F_eff.
+#[derive(Clone, Debug)]
+pub struct DirectTable {
+    pub codes: Vec<f32>,
+    /// The largest difference between the interpolated table and [`Inverse::code`], sampled
+    /// at three points inside every interval [codes].
+    pub max_code_error: f64,
+}
+
+impl DirectTable {
+    /// Builds the table from 4096 entries up, doubling until the interpolation error is below
+    /// [`MAX_TABLE_CODE_ERROR`] (at most 65536 entries).
+    pub fn build(inverse: &Inverse) -> Result<DirectTable, DisplayError> {
+        let (f_lo, f_hi) = inverse.range();
+        let at = |u: f64| f_lo + (f_hi - f_lo) * u.powi(4);
+        let mut n = TABLE_ENTRIES;
+        loop {
+            let step = 1.0 / (n - 1) as f64;
+            let codes: Vec<f64> = (0..n).map(|i| inverse.code(at(i as f64 * step))).collect();
+            let mut err = 0.0f64;
+            for (i, w) in codes.windows(2).enumerate() {
+                for s in [0.25, 0.5, 0.75] {
+                    let exact = inverse.code(at((i as f64 + s) * step));
+                    err = err.max((w[0] + s * (w[1] - w[0]) - exact).abs());
+                }
+            }
+            if err <= MAX_TABLE_CODE_ERROR || n >= 16 * TABLE_ENTRIES {
+                if err > MAX_TABLE_CODE_ERROR {
+                    return Err(DisplayError::Table {
+                        got: err,
+                        entries: n,
+                        max_code_error: MAX_TABLE_CODE_ERROR,
+                    });
+                }
+                return Ok(DirectTable {
+                    codes: codes.iter().map(|&c| c as f32).collect(),
+                    max_code_error: err,
+                });
+            }
+            n *= 2;
+        }
+    }
+}
+
+/// The inverse calibration on the GPU.
 struct Lut {
-    texture: wgpu::Texture,
+    buffer: wgpu::Buffer,
     entries: u32,
     code_lo: f32,
     code_hi: f32,
@@ -56,25 +138,68 @@ struct Lut {
     f_hi: f32,
 }
 
+/// The frame being shown: the region's F_eff and where and how it is drawn.
+struct Input {
+    region_px: [u32; 2],
+    buffer: wgpu::Buffer,
+    origin_px: [u32; 2],
+    dither: bool,
+}
+
+/// One target's view of the inputs: its own parameters (the view scale differs between the
+/// screen and a preview) and the bind group naming the current textures.
+pub(crate) struct Binding {
+    params: wgpu::Buffer,
+    group: wgpu::BindGroup,
+    generation: u64,
+}
+
+/// The off-screen target: the screen's codes, two per `u32` (low half first), and the
+/// buffer they are read back through.
+struct Offscreen {
+    screen_px: [u32; 2],
+    codes: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    words_per_row: u32,
+    out_group: wgpu::BindGroup,
+    binding: Option<Binding>,
+}
+
 pub struct Presenter {
+    instance: wgpu::Instance,
+    adapter: wgpu::Adapter,
     device: wgpu::Device,
     queue: wgpu::Queue,
-    adapter: wgpu::AdapterInfo,
-    pipeline: wgpu::RenderPipeline,
+    shader: wgpu::ShaderModule,
     layout: wgpu::BindGroupLayout,
-    format: wgpu::TextureFormat,
-    params: wgpu::Buffer,
+    pipeline_layout: wgpu::PipelineLayout,
+    pipelines: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
+    out_layout: wgpu::BindGroupLayout,
+    compute: wgpu::ComputePipeline,
+    bits: u32,
     lut: Option<Lut>,
-    target: Option<Target>,
-    top: f32,
+    table_error: f64,
+    input: Option<Input>,
+    /// Bumped whenever the LUT or the input texture is replaced (bindings then rebuild).
+    generation: u64,
+    offscreen: Option<Offscreen>,
+    scratch: Vec<f32>,
 }
 
 impl Presenter {
-    /// A presenter on the default adapter (honours `WGPU_BACKEND`) for `screen_bits` (8: rgba8,
-    /// 10: rgb10a2) output.
+    /// A presenter on the default adapter (honours `WGPU_BACKEND`) for a `screen_bits` (8 or
+    /// 10) screen, with no window.
     pub fn new_headless(screen_bits: u32) -> Result<Presenter, DisplayError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        Presenter::with_instance(instance, screen_bits)
+    }
+
+    /// A presenter on `instance` (which, for windows, carries the display handle).
+    pub fn with_instance(
+        instance: wgpu::Instance,
+        screen_bits: u32,
+    ) -> Result<Presenter, DisplayError> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,
@@ -87,30 +212,26 @@ impl Presenter {
             ..Default::default()
         }))
         .map_err(|e| DisplayError::Device(e.to_string()))?;
-        let format = if screen_bits > 8 {
-            wgpu::TextureFormat::Rgb10a2Unorm
-        } else {
-            wgpu::TextureFormat::Rgba8Unorm
-        };
         let shader = device.create_shader_module(wgpu::include_wgsl!("lut.wgsl"));
-        let texture_entry = |binding| wgpu::BindGroupLayoutEntry {
+        let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
+        let storage_entry = |binding| wgpu::BindGroupLayoutEntry {
             binding,
-            visibility: wgpu::ShaderStages::FRAGMENT,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                view_dimension: wgpu::TextureViewDimension::D2,
-                multisampled: false,
+            visibility,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
             },
             count: None,
         };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("lut"),
             entries: &[
-                texture_entry(0),
-                texture_entry(1),
+                storage_entry(0),
+                storage_entry(1),
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
@@ -125,183 +246,101 @@ impl Presenter {
             bind_group_layouts: &[Some(&layout)],
             ..Default::default()
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("lut"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                buffers: &[],
-                compilation_options: Default::default(),
-            },
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_main"),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-                compilation_options: Default::default(),
-            }),
-            primitive: Default::default(),
-            depth_stencil: None,
-            multisample: Default::default(),
-            multiview_mask: None,
+        let out_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("screen codes"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only: false },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            }],
+        });
+        let compute = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("lut (off-screen)"),
+            layout: Some(
+                &device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("lut (off-screen)"),
+                    bind_group_layouts: &[Some(&layout), Some(&out_layout)],
+                    ..Default::default()
+                }),
+            ),
+            module: &shader,
+            entry_point: Some("cs_codes"),
+            compilation_options: Default::default(),
             cache: None,
         });
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lut params"),
-            size: 48,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         Ok(Presenter {
+            instance,
+            out_layout,
+            compute,
+            adapter,
             device,
             queue,
-            adapter: adapter.get_info(),
-            pipeline,
+            shader,
             layout,
-            format,
-            params,
+            pipeline_layout,
+            pipelines: Vec::new(),
+            bits: screen_bits,
             lut: None,
-            target: None,
-            top: ((1u32 << screen_bits) - 1) as f32,
+            table_error: 0.0,
+            input: None,
+            generation: 0,
+            offscreen: None,
+            scratch: Vec::new(),
         })
     }
 
     /// The adapter in words (name and backend), for logs and reports.
     pub fn adapter(&self) -> String {
-        format!(
-            "{} ({:?}, {:?})",
-            self.adapter.name, self.adapter.backend, self.adapter.device_type
-        )
+        let info = self.adapter.get_info();
+        format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
     }
 
-    /// Uploads the inverse calibration table (again whenever the curve is replayed).
-    pub fn set_inverse(&mut self, inverse: &Inverse) {
-        let table: Vec<f32> = inverse.table().iter().map(|&x| x as f32).collect();
-        let n = table.len() as u32;
-        let tex = self.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("inverse calibration"),
-            size: wgpu::Extent3d {
-                width: n,
-                height: 1,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        write_r32(&self.queue, &tex, &table, [n, 1]);
+    /// The screen's DN depth [bit].
+    pub fn bits(&self) -> u32 {
+        self.bits
+    }
+
+    /// The direct table's interpolation error for the uploaded curve [codes].
+    pub fn table_error(&self) -> f64 {
+        self.table_error
+    }
+
+    /// Uploads the inverse calibration (again whenever the curve is replayed).
+    pub fn set_inverse(&mut self, inverse: &Inverse) -> Result<(), DisplayError> {
+        let table = DirectTable::build(inverse)?;
+        let n = table.codes.len();
+        let buffer = self.storage("inverse calibration", n);
+        self.queue
+            .write_buffer(&buffer, 0, bytemuck::cast_slice(&table.codes));
         let (code_lo, code_hi) = inverse.codes();
         let (f_lo, f_hi) = inverse.range();
         self.lut = Some(Lut {
-            texture: tex,
-            entries: n,
+            buffer,
+            entries: n as u32,
             code_lo: code_lo as f32,
             code_hi: code_hi as f32,
             f_lo: f_lo as f32,
             f_hi: f_hi as f32,
         });
-        self.target = None; // its bind group names the old table
+        self.table_error = table.max_code_error;
+        self.generation += 1;
+        Ok(())
     }
 
-    /// (Re)creates the per-screen resources when the screen or region size changes.
-    fn ensure_target(&mut self, screen_px: [u32; 2], region_px: [u32; 2]) {
-        let fits = self
-            .target
-            .as_ref()
-            .is_some_and(|t| t.screen_px == screen_px && t.region_px == region_px);
-        if !fits {
-            let texture = |label, [w, h]: [u32; 2], format, usage| {
-                self.device.create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size: wgpu::Extent3d {
-                        width: w,
-                        height: h,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage,
-                    view_formats: &[],
-                })
-            };
-            let feff = texture(
-                "feff",
-                region_px,
-                wgpu::TextureFormat::R32Float,
-                wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            );
-            let out = texture(
-                "screen",
-                screen_px,
-                self.format,
-                wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            );
-            let padded_row = (4 * screen_px[0]).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
-                * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-            let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("screen read-back"),
-                size: (padded_row * screen_px[1]) as u64,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            let table = &self
-                .lut
-                .as_ref()
-                .expect("checked by draw_offscreen")
-                .texture;
-            let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("lut"),
-                layout: &self.layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(
-                            &feff.create_view(&Default::default()),
-                        ),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: wgpu::BindingResource::TextureView(
-                            &table.create_view(&Default::default()),
-                        ),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: self.params.as_entire_binding(),
-                    },
-                ],
-            });
-            self.target = Some(Target {
-                screen_px,
-                region_px,
-                feff,
-                out,
-                readback,
-                padded_row,
-                bind_group,
-            });
-        }
-    }
-
-    /// Draws one frame off-screen: `feff_region` is the screen region's F_eff (region size,
-    /// row-major, after the collimator mapping and the transmittance), the LUT pass writes the
-    /// whole screen, and the codes come back as one `u16` per screen pixel.
-    pub fn draw_offscreen(
+    /// Uploads one frame: `feff_region` is the screen region's F_eff (region size, row-major,
+    /// after the collimator mapping and the transmittance). Returns the time taken [ms].
+    pub fn upload(
         &mut self,
         config: &StimulatorConfig,
         region_px: [usize; 2],
         feff_region: &[f64],
-        out: &mut Vec<u16>,
-    ) -> Result<PresentTimings, DisplayError> {
+    ) -> Result<f64, DisplayError> {
+        let t0 = Instant::now();
         let want = region_px[0] * region_px[1];
         if feff_region.len() != want {
             return Err(DisplayError::RegionSize {
@@ -309,85 +348,131 @@ impl Presenter {
                 want,
             });
         }
+        let region = [region_px[0] as u32, region_px[1] as u32];
+        if self.input.as_ref().is_none_or(|i| i.region_px != region) {
+            let buffer = self.storage("feff", want);
+            self.input = Some(Input {
+                region_px: region,
+                buffer,
+                origin_px: [0, 0],
+                dither: false,
+            });
+            self.generation += 1;
+        }
+        let mut scratch = std::mem::take(&mut self.scratch);
+        {
+            use rayon::prelude::*;
+            feff_region
+                .par_iter()
+                .map(|&x| x as f32)
+                .collect_into_vec(&mut scratch);
+        }
+        let input = self.input.as_mut().expect("made above");
+        input.origin_px = [config.origin_px[0] as u32, config.origin_px[1] as u32];
+        input.dither = config.dither == Dither::Ordered;
+        self.queue
+            .write_buffer(&input.buffer, 0, bytemuck::cast_slice(&scratch));
+        self.scratch = scratch;
+        Ok(ms(t0))
+    }
+
+    /// Computes the uploaded frame's codes for a whole `screen_px` screen off-screen and
+    /// reads them back, one `u16` per screen pixel. The same `screen_code` as the windows'
+    /// pass, run as a compute pass into a buffer (on a software rasteriser, rasterising the
+    /// screen costs more than the LUT itself).
+    pub fn render_offscreen(
+        &mut self,
+        screen_px: [usize; 2],
+        out: &mut Vec<u16>,
+    ) -> Result<PresentTimings, DisplayError> {
         let mut t = PresentTimings::default();
         let t0 = Instant::now();
-        let lut = self
-            .lut
+        let screen = [screen_px[0] as u32, screen_px[1] as u32];
+        if self
+            .offscreen
             .as_ref()
-            .ok_or_else(|| DisplayError::Device("no calibration uploaded (set_inverse)".into()))?;
-        let screen = [config.screen_px[0] as u32, config.screen_px[1] as u32];
-        let region = [region_px[0] as u32, region_px[1] as u32];
-        let params: [u32; 12] = [
-            config.origin_px[0] as u32,
-            config.origin_px[1] as u32,
-            region[0],
-            region[1],
-            lut.code_lo.to_bits(),
-            self.top.to_bits(),
-            lut.f_lo.to_bits(),
-            lut.f_hi.to_bits(),
-            lut.entries,
-            (INVERSE_SUBSTEPS as f32).to_bits(),
-            u32::from(config.dither == Dither::Ordered),
-            lut.code_hi.to_bits(),
-        ];
-        let bytes: Vec<u8> = params.iter().flat_map(|x| x.to_le_bytes()).collect();
-        self.queue.write_buffer(&self.params, 0, &bytes);
-        let data: Vec<f32> = feff_region.iter().map(|&x| x as f32).collect();
-        self.ensure_target(screen, region);
-        let target = self.target.as_ref().expect("made above");
-        write_r32(&self.queue, &target.feff, &data, region);
-        t.upload = ms(t0);
-
-        let t0 = Instant::now();
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lut") });
+            .is_none_or(|o| o.screen_px != screen)
         {
-            let view = target.out.create_view(&Default::default());
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("lut"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &view,
-                    resolve_target: None,
-                    depth_slice: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                ..Default::default()
+            let words_per_row = screen[0].div_ceil(2);
+            let size = (4 * words_per_row * screen[1]) as u64;
+            let buffer = |label, usage| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            let codes = buffer(
+                "screen codes",
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            );
+            let readback = buffer(
+                "screen read-back",
+                wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            );
+            let out_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("screen codes"),
+                layout: &self.out_layout,
+                entries: &[wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: codes.as_entire_binding(),
+                }],
             });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &target.bind_group, &[]);
-            pass.draw(0..3, 0..1);
+            self.offscreen = Some(Offscreen {
+                screen_px: screen,
+                codes,
+                readback,
+                words_per_row,
+                out_group,
+                binding: None,
+            });
         }
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: &target.out,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &target.readback,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(target.padded_row),
-                    rows_per_image: Some(screen[1]),
-                },
-            },
-            wgpu::Extent3d {
-                width: screen[0],
-                height: screen[1],
-                depth_or_array_layers: 1,
-            },
-        );
-        self.queue.submit([encoder.finish()]);
+        let mut off = self.offscreen.take().expect("made above");
+        let encoded = self.bind(&mut off.binding, screen, [1.0; 2]).map(|b| {
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lut") });
+            {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.compute);
+                pass.set_bind_group(0, &b.group, &[]);
+                pass.set_bind_group(1, &off.out_group, &[]);
+                pass.dispatch_workgroups(off.words_per_row.div_ceil(128), screen[1], 1);
+            }
+            encoder.copy_buffer_to_buffer(&off.codes, 0, &off.readback, 0, off.codes.size());
+            self.queue.submit([encoder.finish()]);
+        });
         t.lut_pass = ms(t0);
+        let result = encoded.and_then(|()| {
+            let t0 = Instant::now();
+            self.read_codes(&off, out)?;
+            t.readback = ms(t0);
+            Ok(t)
+        });
+        self.offscreen = Some(off);
+        result
+    }
 
-        let t0 = Instant::now();
-        let slice = target.readback.slice(..);
+    /// Upload, LUT pass and read-back of one frame off-screen: the screen's codes, one `u16`
+    /// per screen pixel.
+    pub fn draw_offscreen(
+        &mut self,
+        config: &StimulatorConfig,
+        region_px: [usize; 2],
+        feff_region: &[f64],
+        out: &mut Vec<u16>,
+    ) -> Result<PresentTimings, DisplayError> {
+        let upload = self.upload(config, region_px, feff_region)?;
+        let mut t = self.render_offscreen(config.screen_px, out)?;
+        t.upload = upload;
+        Ok(t)
+    }
+
+    /// Maps the read-back buffer and copies out one code per pixel.
+    fn read_codes(&self, off: &Offscreen, out: &mut Vec<u16>) -> Result<(), DisplayError> {
+        let [w, h] = off.screen_px.map(|x| x as usize);
+        let slice = off.readback.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
@@ -403,22 +488,166 @@ impl Presenter {
                 .get_mapped_range()
                 .map_err(|e| DisplayError::Readback(e.to_string()))?;
             out.clear();
-            out.reserve((screen[0] * screen[1]) as usize);
-            let ten_bit = self.format == wgpu::TextureFormat::Rgb10a2Unorm;
-            for row in mapped.chunks(target.padded_row as usize) {
-                for px in row[..4 * screen[0] as usize].chunks_exact(4) {
-                    let word = u32::from_le_bytes([px[0], px[1], px[2], px[3]]);
-                    out.push(if ten_bit {
-                        (word & 0x3ff) as u16
-                    } else {
-                        px[0] as u16
-                    });
-                }
+            out.resize(w * h, 0);
+            let row_bytes = 4 * off.words_per_row as usize;
+            for (dst, row) in out.chunks_exact_mut(w).zip(mapped.chunks(row_bytes)) {
+                dst.copy_from_slice(bytemuck::cast_slice(&row[..2 * w]));
             }
         }
-        target.readback.unmap();
-        t.readback = ms(t0);
-        Ok(t)
+        off.readback.unmap();
+        Ok(())
+    }
+
+    /// Makes `binding` current (rebuilt when the LUT or the input texture changed) and writes
+    /// its parameters for a `target_px` target showing `view_scale` screen pixels per target
+    /// pixel.
+    fn bind<'b>(
+        &self,
+        binding: &'b mut Option<Binding>,
+        target_px: [u32; 2],
+        view_scale: [f32; 2],
+    ) -> Result<&'b Binding, DisplayError> {
+        let lut = self.lut.as_ref().ok_or(DisplayError::NoCalibration)?;
+        let input = self.input.as_ref().ok_or(DisplayError::NoFrame)?;
+        if binding
+            .as_ref()
+            .is_none_or(|b| b.generation != self.generation)
+        {
+            let params = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("lut params"),
+                size: 64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("lut"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: input.buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: lut.buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: params.as_entire_binding(),
+                    },
+                ],
+            });
+            *binding = Some(Binding {
+                params,
+                group,
+                generation: self.generation,
+            });
+        }
+        let b = binding.as_ref().expect("made above");
+        let top = ((1u32 << self.bits) - 1) as f32;
+        let params: [u32; 16] = [
+            input.origin_px[0],
+            input.origin_px[1],
+            input.region_px[0],
+            input.region_px[1],
+            view_scale[0].to_bits(),
+            view_scale[1].to_bits(),
+            lut.code_lo.to_bits(),
+            lut.code_hi.to_bits(),
+            top.to_bits(),
+            lut.f_lo.to_bits(),
+            lut.f_hi.to_bits(),
+            lut.entries,
+            (1.0 / (lut.f_hi - lut.f_lo)).to_bits(),
+            u32::from(input.dither),
+            target_px[0],
+            target_px[1],
+        ];
+        self.queue
+            .write_buffer(&b.params, 0, bytemuck::cast_slice(&params));
+        Ok(b)
+    }
+
+    /// The LUT pass into `view` (a `target_px` texture of `format`, a window's), with
+    /// `view_scale` screen pixels per target pixel; `binding` is the target's own.
+    pub(crate) fn encode_pass(
+        &mut self,
+        binding: &mut Option<Binding>,
+        view: &wgpu::TextureView,
+        format: wgpu::TextureFormat,
+        target_px: [u32; 2],
+        view_scale: [f32; 2],
+    ) -> Result<wgpu::CommandEncoder, DisplayError> {
+        let pipeline = self.pipeline(format).clone();
+        let b = self.bind(binding, target_px, view_scale)?;
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lut") });
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("lut"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view,
+                    resolve_target: None,
+                    depth_slice: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                ..Default::default()
+            });
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &b.group, &[]);
+            pass.draw(0..3, 0..1);
+        }
+        Ok(encoder)
+    }
+
+    /// The LUT pipeline for a target format (made once per format).
+    fn pipeline(&mut self, format: wgpu::TextureFormat) -> &wgpu::RenderPipeline {
+        if let Some(i) = self.pipelines.iter().position(|(f, _)| *f == format) {
+            return &self.pipelines[i].1;
+        }
+        let pipeline = self
+            .device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("lut"),
+                layout: Some(&self.pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &self.shader,
+                    entry_point: Some("vs_main"),
+                    buffers: &[],
+                    compilation_options: Default::default(),
+                },
+                fragment: Some(wgpu::FragmentState {
+                    module: &self.shader,
+                    entry_point: Some("fs_main"),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                    compilation_options: Default::default(),
+                }),
+                primitive: Default::default(),
+                depth_stencil: None,
+                multisample: Default::default(),
+                multiview_mask: None,
+                cache: None,
+            });
+        self.pipelines.push((format, pipeline));
+        &self.pipelines.last().expect("pushed").1
+    }
+
+    /// A storage buffer of `n` f32 values, written by the queue.
+    fn storage(&self, label: &str, n: usize) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (4 * n.max(1)) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
     }
 }
 
@@ -426,25 +655,24 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-fn write_r32(queue: &wgpu::Queue, tex: &wgpu::Texture, data: &[f32], [w, h]: [u32; 2]) {
-    let bytes: Vec<u8> = data.iter().flat_map(|x| x.to_le_bytes()).collect();
-    queue.write_texture(
-        wgpu::TexelCopyTextureInfo {
-            texture: tex,
-            mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
-            aspect: wgpu::TextureAspect::All,
-        },
-        &bytes,
-        wgpu::TexelCopyBufferLayout {
-            offset: 0,
-            bytes_per_row: Some(4 * w),
-            rows_per_image: Some(h),
-        },
-        wgpu::Extent3d {
-            width: w,
-            height: h,
-            depth_or_array_layers: 1,
-        },
-    );
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stimulator::calibration::{Curve, Interp};
+
+    /// The example curve tabulates well inside the error bound at 10 bit and at 8 bit.
+    #[test]
+    fn direct_table_of_the_example_curve_is_accurate() {
+        let example = crate::stimulator::calibration::tests::EXAMPLE;
+        let curve = Curve::parse(example.as_bytes(), "example", "example", Interp::Pchip).unwrap();
+        for levels in [256, 1024] {
+            let t = DirectTable::build(&curve.inverse(0, levels)).unwrap();
+            assert!(
+                t.max_code_error <= MAX_TABLE_CODE_ERROR,
+                "{}",
+                t.max_code_error
+            );
+            assert!(t.codes.windows(2).all(|w| w[1] >= w[0]));
+        }
+    }
 }

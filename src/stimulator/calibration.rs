@@ -368,7 +368,6 @@ impl Inverse {
     ) -> ClipCounts {
         use rayon::prelude::*;
         let width = width.max(1);
-        let (f_lo, f_hi) = self.range;
         let c_lo = self.code_lo;
         let c_hi = self.code_lo + (self.feff.len() - 1) as f64 / INVERSE_SUBSTEPS;
         out.clear();
@@ -379,28 +378,68 @@ impl Inverse {
             .map(|(j, (row_out, row))| {
                 let mut clips = ClipCounts::default();
                 for (i, (o, &f)) in row_out.iter_mut().zip(row).enumerate() {
-                    let v = if f >= f_lo && f <= f_hi {
-                        dither.quantise(self.code(f), i, j).clamp(c_lo, c_hi)
-                    } else if f > f_hi {
-                        clips.above_max += 1;
-                        c_hi
-                    } else {
-                        if f == 0.0 {
-                            clips.black += 1;
-                        } else {
-                            clips.below_dark += 1; // also negative or NaN: never expected
-                        }
-                        c_lo
+                    let v = match clips.classify(f, self.range) {
+                        Place::Inside => dither.quantise(self.code(f), i, j).clamp(c_lo, c_hi),
+                        Place::Above => c_hi,
+                        Place::Below => c_lo,
                     };
                     *o = v as u16;
                 }
                 clips
             })
-            .reduce(ClipCounts::default, |a, b| ClipCounts {
-                black: a.black + b.black,
-                below_dark: a.below_dark + b.below_dark,
-                above_max: a.above_max + b.above_max,
+            .reduce(ClipCounts::default, ClipCounts::merge)
+    }
+
+    /// The clip counts [`Inverse::apply`] would report for `feff`, without the codes (for a
+    /// frame the GPU inverts).
+    pub fn count_clips(&self, feff: &[f64]) -> ClipCounts {
+        use rayon::prelude::*;
+        feff.par_chunks(4096)
+            .map(|chunk| {
+                let mut clips = ClipCounts::default();
+                chunk.iter().for_each(|&f| {
+                    clips.classify(f, self.range);
+                });
+                clips
             })
+            .reduce(ClipCounts::default, ClipCounts::merge)
+    }
+}
+
+/// Where an F_eff value falls against the screen's range.
+enum Place {
+    Inside,
+    Below,
+    Above,
+}
+
+impl ClipCounts {
+    /// Places `f` against `[f_lo, f_hi]` and counts it when it is outside: no light at all is
+    /// `black`, above zero (or negative, or NaN: never expected) but below the dark level is
+    /// `below_dark`, above the maximum `above_max`.
+    #[inline(always)]
+    fn classify(&mut self, f: f64, (f_lo, f_hi): (f64, f64)) -> Place {
+        if f >= f_lo && f <= f_hi {
+            Place::Inside
+        } else if f > f_hi {
+            self.above_max += 1;
+            Place::Above
+        } else {
+            if f == 0.0 {
+                self.black += 1;
+            } else {
+                self.below_dark += 1;
+            }
+            Place::Below
+        }
+    }
+
+    fn merge(a: ClipCounts, b: ClipCounts) -> ClipCounts {
+        ClipCounts {
+            black: a.black + b.black,
+            below_dark: a.below_dark + b.below_dark,
+            above_max: a.above_max + b.above_max,
+        }
     }
 }
 
@@ -550,7 +589,7 @@ fn pchip_slopes(x: &[f64], y: &[f64]) -> Vec<f64> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     pub const EXAMPLE: &str = include_str!("../../calibration/example_gamma22.csv");

@@ -8,8 +8,8 @@
 //! [`Stimulator`] turns one rendered signal image into a full screen of DN codes, reporting
 //! clipped pixels and the curve that made it; [`camera::SimulatedCamera`] is the bench's
 //! stand-in (screen DN -> the screen's true response -> collimator -> detector);
-//! [`calibrate`] measures a curve through any [`calibrate::Bench`]. The wgpu presenter is still
-//! to come (issue 4).
+//! [`calibrate`] measures a curve through any [`calibrate::Bench`]. The GPU does the inversion
+//! step again for the screen in [`crate::display`].
 
 pub mod calibrate;
 pub mod calibration;
@@ -154,6 +154,11 @@ impl Stimulator {
         &self.resampler
     }
 
+    /// The current curve's inverse at the screen's depth (what the GPU presenter tabulates).
+    pub fn inverse(&self) -> &Inverse {
+        &self.inverse
+    }
+
     /// The curve in use.
     pub fn curve(&self) -> &Arc<Curve> {
         &self.curve
@@ -167,6 +172,36 @@ impl Stimulator {
 
     /// One frame: `signal_e_per_s` is the flight camera's signal image (row-major).
     pub fn process(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
+        let mut frame = self.region(signal_e_per_s)?;
+        let t0 = Instant::now();
+        let [rw, rh] = self.resampler.region_px();
+        let mut region = Vec::new();
+        frame.clips =
+            self.inverse
+                .apply(&frame.region_feff_w_m2, rw, self.config.dither, &mut region);
+        let [sw, sh] = self.config.screen_px;
+        let [ox, oy] = self.config.origin_px;
+        frame.screen_dn = vec![0u16; sw * sh];
+        for (r, row) in region.chunks(rw).enumerate().take(rh) {
+            let dst = (oy + r) * sw + ox;
+            frame.screen_dn[dst..dst + rw].copy_from_slice(row);
+        }
+        frame.timings_ms.invert = ms(t0);
+        Ok(frame)
+    }
+
+    /// One frame up to the screen region's F_eff, for a presenter that inverts on the GPU:
+    /// `screen_dn` is empty; the clip counts are those the inversion will meet.
+    pub fn prepare(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
+        let mut frame = self.region(signal_e_per_s)?;
+        let t0 = Instant::now();
+        frame.clips = self.inverse.count_clips(&frame.region_feff_w_m2);
+        frame.timings_ms.invert = ms(t0);
+        Ok(frame)
+    }
+
+    /// F_eff (Eq. 58) and the region's F_eff, divided by the collimator transmittance.
+    fn region(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
         let want = self.camera_px[0] * self.camera_px[1];
         if signal_e_per_s.len() != want {
             return Err(StimulatorError::ImageSize {
@@ -181,32 +216,19 @@ impl Stimulator {
         t.feff = ms(t0);
 
         let t0 = Instant::now();
-        let mut region_feff_w_m2 = Vec::new();
-        self.resampler.to_screen(&feff_w_m2, &mut region_feff_w_m2);
         // The screen emits F_eff / T so that the camera, behind the collimator, gets F_eff.
-        let inv_t = 1.0 / self.config.collimator_transmittance;
-        region_feff_w_m2.iter_mut().for_each(|f| *f *= inv_t);
+        let mut region_feff_w_m2 = Vec::new();
+        self.resampler.to_screen(
+            &feff_w_m2,
+            1.0 / self.config.collimator_transmittance,
+            &mut region_feff_w_m2,
+        );
         t.resample = ms(t0);
-
-        let t0 = Instant::now();
-        let [rw, rh] = self.resampler.region_px();
-        let mut region = Vec::new();
-        let clips = self
-            .inverse
-            .apply(&region_feff_w_m2, rw, self.config.dither, &mut region);
-        let [sw, sh] = self.config.screen_px;
-        let [ox, oy] = self.config.origin_px;
-        let mut screen_dn = vec![0u16; sw * sh];
-        for (r, row) in region.chunks(rw).enumerate().take(rh) {
-            let dst = (oy + r) * sw + ox;
-            screen_dn[dst..dst + rw].copy_from_slice(row);
-        }
-        t.invert = ms(t0);
         Ok(StimulatorFrame {
             feff_w_m2,
             region_feff_w_m2,
-            screen_dn,
-            clips,
+            screen_dn: Vec::new(),
+            clips: ClipCounts::default(),
             calibration_id: self.curve.id.clone(),
             calibration_sha256: self.curve.sha256.clone(),
             timings_ms: t,
@@ -223,10 +245,13 @@ pub fn feff_factor(detector: &Detector, intrinsics: &Intrinsics) -> f64 {
     H * C / (intrinsics.aperture_area_m2() * max_qe_t_lambda(&detector.qe, &detector.transmittance))
 }
 
-/// F_eff per pixel [W/m^2] from the signal per pixel [e-/s] (Eq. 58).
+/// F_eff per pixel [W/m^2] from the signal per pixel [e-/s] (Eq. 58), in parallel.
 pub fn feff(signal_e_per_s: &[f64], k: f64, out: &mut Vec<f64>) {
-    out.clear();
-    out.extend(signal_e_per_s.iter().map(|s| s * k));
+    use rayon::prelude::*;
+    signal_e_per_s
+        .par_iter()
+        .map(|s| s * k)
+        .collect_into_vec(out);
 }
 
 #[cfg(test)]

@@ -61,28 +61,34 @@ impl Resampler {
         [0, 1].map(|a| ((camera_px[a] as f64 / scale[a]) * (1.0 - 1e-12)).ceil() as usize)
     }
 
-    /// Camera-grid F_eff -> screen-region F_eff: each screen pixel gets the area-weighted mean
-    /// of the camera pixels it covers (the part outside the camera frame counts as dark).
-    pub fn to_screen(&self, camera: &[f64], out: &mut Vec<f64>) {
-        out.clear();
+    /// Camera-grid F_eff -> screen-region F_eff times `gain`: each screen pixel gets the
+    /// area-weighted mean of the camera pixels it covers (the part outside the camera frame
+    /// counts as dark). In parallel over region rows.
+    pub fn to_screen(&self, camera: &[f64], gain: f64, out: &mut Vec<f64>) {
+        use rayon::prelude::*;
         if self.identity {
-            out.extend_from_slice(camera);
+            camera.par_iter().map(|f| f * gain).collect_into_vec(out);
             return;
         }
         let [cw, _] = self.camera_px;
-        let area = self.scale[0] * self.scale[1];
-        for (v0, wv) in &self.weights[1] {
-            for (u0, wu) in &self.weights[0] {
-                let mut sum = 0.0;
-                for (dv, &a) in wv.iter().enumerate() {
-                    let row = &camera[(v0 + dv) * cw + u0..];
-                    for (du, &b) in wu.iter().enumerate() {
-                        sum += a * b * row[du];
+        let rw = self.region_px[0];
+        let norm = gain / (self.scale[0] * self.scale[1]);
+        out.clear();
+        out.resize(rw * self.region_px[1], 0.0);
+        out.par_chunks_mut(rw)
+            .zip(self.weights[1].par_iter())
+            .for_each(|(row_out, (v0, wv))| {
+                for (o, (u0, wu)) in row_out.iter_mut().zip(&self.weights[0]) {
+                    let mut sum = 0.0;
+                    for (dv, &a) in wv.iter().enumerate() {
+                        let row = &camera[(v0 + dv) * cw + u0..];
+                        for (du, &b) in wu.iter().enumerate() {
+                            sum += a * b * row[du];
+                        }
                     }
+                    *o = sum * norm;
                 }
-                out.push(sum / area);
-            }
-        }
+            });
     }
 
     /// Screen-region F_eff -> camera-grid F_eff: each camera pixel gets the area-weighted mean
@@ -126,7 +132,7 @@ mod tests {
         assert_eq!(r.region_px(), [5, 3]);
         let cam = ramp(5, 3);
         let (mut s, mut c) = (Vec::new(), Vec::new());
-        r.to_screen(&cam, &mut s);
+        r.to_screen(&cam, 1.0, &mut s);
         r.to_camera(&s, &mut c);
         assert_eq!(cam, c);
     }
@@ -139,7 +145,7 @@ mod tests {
             let r = Resampler::new([w, h], scale);
             let cam = ramp(w, h);
             let (mut s, mut c) = (Vec::new(), Vec::new());
-            r.to_screen(&cam, &mut s);
+            r.to_screen(&cam, 1.0, &mut s);
             let [rw, rh] = r.region_px();
             assert_eq!(s.len(), rw * rh);
             let cam_flux: f64 = cam.iter().sum();
@@ -161,7 +167,7 @@ mod tests {
         let r = Resampler::new([4, 2], [2.0, 2.0]);
         let cam = vec![1.0, 3.0, 5.0, 7.0, 1.0, 3.0, 5.0, 7.0];
         let mut s = Vec::new();
-        r.to_screen(&cam, &mut s);
+        r.to_screen(&cam, 1.0, &mut s);
         assert_eq!(s, vec![2.0, 6.0]);
     }
 }

@@ -1,0 +1,127 @@
+//! One pose's way to the screen, off the async runtime: render -> detector signal -> the
+//! stimulator chain (F_eff, screen region, DN) -> the simulated camera's view of the screen.
+//! [`FrameMaker`] holds the per-scene state (renderer pool and buffers, the stimulator with its
+//! current curve, the simulated camera) and reports every stage's time with every frame.
+
+use crate::config::Config;
+use crate::render::{FrameStats, RenderError, Renderer};
+use crate::scene::Pose;
+use crate::stimulator::calibration::Curve;
+use crate::stimulator::camera::SimulatedCamera;
+use crate::stimulator::{Stimulator, StimulatorError, StimulatorFrame};
+use serde::Serialize;
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    #[error(transparent)]
+    Stimulator(#[from] StimulatorError),
+}
+
+/// Time per stage of one frame [ms].
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct FrameTimings {
+    pub render: f64,
+    pub signal: f64,
+    pub stimulator: f64,
+    pub camera: f64,
+}
+
+/// One pose, made.
+pub struct MadeFrame {
+    pub frame_id: u64,
+    /// The flight camera's signal [e-/s] (camera pixels, row-major).
+    pub signal_e_per_s: Vec<f64>,
+    pub stats: FrameStats,
+    /// With a `[stimulator]` section: F_eff, the screen region and the screen's DN.
+    pub stimulator: Option<StimulatorFrame>,
+    /// The simulated camera's image of the screen [DN], when asked for.
+    pub camera_dn: Option<Vec<u16>>,
+    pub timings_ms: FrameTimings,
+}
+
+/// Per-scene state of the frame pipeline.
+pub struct FrameMaker {
+    config: Config,
+    renderer: Renderer,
+    stimulator: Option<Stimulator>,
+    camera: Option<SimulatedCamera>,
+}
+
+impl FrameMaker {
+    /// Loads the calibration and the simulated camera's true response of `config`'s
+    /// `[stimulator]` section, when it has one.
+    pub fn new(config: &Config) -> Result<FrameMaker, PipelineError> {
+        let (stimulator, camera) = match &config.stimulator {
+            Some(st) => {
+                let intr = &config.scene.camera.intrinsics;
+                let det = &config.scene.camera.detector;
+                (
+                    Some(Stimulator::new(st, intr, det)?),
+                    Some(SimulatedCamera::from_config(st, intr, det)?),
+                )
+            }
+            None => (None, None),
+        };
+        Ok(FrameMaker {
+            renderer: Renderer::new(config.settings.threads)?,
+            config: config.clone(),
+            stimulator,
+            camera,
+        })
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    pub fn stimulator(&self) -> Option<&Stimulator> {
+        self.stimulator.as_ref()
+    }
+
+    /// Replays another calibration curve from the next frame on; returns the old one (`None`
+    /// without a stimulator).
+    pub fn replay(&mut self, curve: Arc<Curve>) -> Option<Arc<Curve>> {
+        self.stimulator.as_mut().map(|s| s.replay(curve))
+    }
+
+    /// Renders `pose`, runs the stimulator chain, and, when `capture`, the simulated camera.
+    pub fn make(&mut self, pose: &Pose, capture: bool) -> Result<MadeFrame, PipelineError> {
+        let mut t = FrameTimings::default();
+        let t0 = Instant::now();
+        let cfg = &self.config;
+        let frame = self.renderer.render(&cfg.scene, pose, &cfg.settings)?;
+        t.render = ms(t0);
+        let t0 = Instant::now();
+        let det = &cfg.scene.camera.detector;
+        let signal = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
+        t.signal = ms(t0);
+        let t0 = Instant::now();
+        let stimulator = match &self.stimulator {
+            Some(s) => Some(s.process(&signal)?),
+            None => None,
+        };
+        t.stimulator = ms(t0);
+        let t0 = Instant::now();
+        let camera_dn = match (&self.camera, &stimulator, capture) {
+            (Some(cam), Some(st), true) => Some(cam.capture(&st.screen_dn, pose.frame_id)?.dn),
+            _ => None,
+        };
+        t.camera = ms(t0);
+        Ok(MadeFrame {
+            frame_id: pose.frame_id,
+            signal_e_per_s: signal,
+            stats: frame.stats,
+            stimulator,
+            camera_dn,
+            timings_ms: t,
+        })
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

@@ -1,0 +1,213 @@
+//! A real borderless fullscreen window under Xvfb: `optistim show` presents the stimulator
+//! scene on monitor 0 of a 1280x1024x24 X server, with openbox as window manager (it resizes
+//! the window after creation, so the surface reconfiguration and redraw are exercised), and a
+//! screenshot of the root window (`xwd`) must show the CPU reference's DN at every pixel,
+//! within 1 LSB. The screen runs at 8 bit, the X server's depth per channel.
+//!
+//! Needs `Xvfb`, `xwd` and `openbox` (`apt-get install xvfb x11-apps openbox`, which `.ci/run`
+//! does); without them the test fails and says so.
+
+mod common;
+use common::rendered_signal;
+use optistim::config;
+use optistim::stimulator::Stimulator;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const SCREEN: [usize; 2] = [1280, 1024];
+
+/// Kills its child when dropped, so that a failing test leaves no X server behind.
+struct Reaped(Child);
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn tool(name: &str) -> PathBuf {
+    std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .map(|d| d.join(name))
+        .find(|p| p.is_file())
+        .unwrap_or_else(|| {
+            panic!("{name} not found: apt-get install xvfb x11-apps openbox (.ci/run does)")
+        })
+}
+
+/// Starts Xvfb on the first free display from :91 and waits for its socket.
+fn start_xvfb() -> (Reaped, String) {
+    let xvfb = tool("Xvfb");
+    for n in 91..120 {
+        let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
+        if socket.exists() || Path::new(&format!("/tmp/.X{n}-lock")).exists() {
+            continue;
+        }
+        let screen = format!("{}x{}x24", SCREEN[0], SCREEN[1]);
+        let child = Command::new(&xvfb)
+            .args([
+                &format!(":{n}"),
+                "-screen",
+                "0",
+                &screen,
+                "-nolisten",
+                "tcp",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start Xvfb");
+        let mut x = Reaped(child);
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(20) {
+            if socket.exists() {
+                return (x, format!(":{n}"));
+            }
+            if let Ok(Some(_)) = x.0.try_wait() {
+                break; // lost a race for this display: try the next
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    panic!("could not start Xvfb on any display :91-:119");
+}
+
+/// Reads an XWD dump (X11's `XWDFileHeader`, big-endian, then the colour map and the pixels)
+/// of a 24/32-bit TrueColor screen: the red channel of every pixel.
+fn xwd_red(bytes: &[u8]) -> (usize, usize, Vec<u8>) {
+    let field = |i: usize| u32::from_be_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
+    let (header_size, width, height) = (field(0) as usize, field(4) as usize, field(5) as usize);
+    let byte_order = field(7); // 0: LSB first
+    let bits_per_pixel = field(11);
+    let bytes_per_line = field(12) as usize;
+    let red_mask = field(14);
+    let ncolors = field(19) as usize;
+    assert_eq!(bits_per_pixel, 32, "expected a 32-bit-per-pixel dump");
+    let data = &bytes[header_size + 12 * ncolors..];
+    let shift = red_mask.trailing_zeros();
+    let mut red = Vec::with_capacity(width * height);
+    for row in data.chunks(bytes_per_line).take(height) {
+        for px in row[..4 * width].chunks_exact(4) {
+            let b: [u8; 4] = px.try_into().unwrap();
+            let v = if byte_order == 0 {
+                u32::from_le_bytes(b)
+            } else {
+                u32::from_be_bytes(b)
+            };
+            red.push(((v & red_mask) >> shift) as u8);
+        }
+    }
+    (width, height, red)
+}
+
+#[test]
+fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
+    let (_xvfb, display) = start_xvfb();
+    let xdg = std::env::temp_dir().join(format!("optistim-xdg-{}", std::process::id()));
+    std::fs::create_dir_all(&xdg).unwrap();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&xdg, std::fs::Permissions::from_mode(0o700)).unwrap();
+    }
+    let _wm = Reaped(
+        Command::new(tool("openbox"))
+            .env("DISPLAY", &display)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start openbox"),
+    );
+
+    // The stimulator scene on a 1280 x 1024 screen at 8 bit, rounded (no dither).
+    let dir = std::env::temp_dir().join(format!("optistim-window-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let calibration = std::fs::canonicalize("calibration/example_gamma22.csv").unwrap();
+    let scene = std::fs::read_to_string("config/stimulator.toml")
+        .unwrap()
+        .replace("[1920, 1200]", "[1280, 1024]")
+        .replace("screen_bit_depth = 10", "screen_bit_depth = 8")
+        .replace("dither = \"ordered\"", "dither = \"none\"")
+        .replace(
+            "\"../calibration/example_gamma22.csv\"",
+            &format!("{:?}", calibration.display().to_string()),
+        );
+    let scene_path = dir.join("scene.toml");
+    std::fs::write(&scene_path, scene).unwrap();
+    let cfg = config::load(&scene_path).unwrap();
+    let st = cfg.stimulator.clone().unwrap();
+    assert_eq!(st.screen_px, SCREEN);
+    let cam = &cfg.scene.camera;
+    let want = Stimulator::new(&st, &cam.intrinsics, &cam.detector)
+        .unwrap()
+        .process(&rendered_signal(&cfg))
+        .unwrap()
+        .screen_dn;
+
+    let mut show = Reaped(
+        Command::new(env!("CARGO_BIN_EXE_optistim"))
+            .args(["show", scene_path.to_str().unwrap(), "--monitor", "0"])
+            .args(["--seconds", "60"])
+            .env("DISPLAY", &display)
+            .env_remove("WAYLAND_DISPLAY")
+            .env("XDG_RUNTIME_DIR", &xdg)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start optistim show"),
+    );
+    // Wait for the first presented frame (one JSON line per frame on stdout).
+    let stdout = show.0.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let first = rx
+        .recv_timeout(Duration::from_secs(120))
+        .expect("optistim show presented no frame within 120 s (see its stderr above)");
+    let presented: serde_json::Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(presented["window"], "fullscreen", "{first}");
+    eprintln!("presented: {first}");
+
+    // Screenshots until one matches: the window manager may still be placing the window.
+    let t0 = Instant::now();
+    let mut last = String::new();
+    while t0.elapsed() < Duration::from_secs(30) {
+        let shot = Command::new(tool("xwd"))
+            .args(["-root", "-silent", "-display", &display])
+            .output()
+            .expect("run xwd");
+        assert!(shot.status.success(), "xwd failed");
+        let (w, h, red) = xwd_red(&shot.stdout);
+        assert_eq!([w, h], SCREEN);
+        let (mut equal, mut one, mut worse) = (0usize, 0usize, 0usize);
+        for (&got, &exp) in red.iter().zip(&want) {
+            match (got as i32 - exp as i32).abs() {
+                0 => equal += 1,
+                1 => one += 1,
+                _ => worse += 1,
+            }
+        }
+        last = format!("{equal} px equal, {one} within 1 LSB, {worse} worse");
+        if worse == 0 {
+            eprintln!(
+                "screenshot after {:.1} s: {last}",
+                t0.elapsed().as_secs_f64()
+            );
+            // The image is there, not a black screen: the Moon's disk is lit.
+            assert!(red.iter().filter(|&&v| v > 0).count() > 400_000);
+            let _ = std::fs::remove_dir_all(&dir);
+            let _ = std::fs::remove_dir_all(&xdg);
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    panic!("the screen never showed the expected DN: {last}");
+}

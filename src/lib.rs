@@ -59,5 +59,6 @@ pub mod pipeline;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
+pub mod server;
 pub mod stimulator;
 pub mod trajectory;

@@ -48,6 +48,58 @@ enum Command {
         #[arg(long)]
         per_frame: Option<PathBuf>,
     },
+    /// The daemon: poses over TCP (binary frames or JSON lines) and serial in, calibrated
+    /// frames out on the stimulator's screen (fullscreen when a display exists, off-screen
+    /// otherwise), HTTP control and monitoring. Stops cleanly on SIGINT/SIGTERM.
+    Serve {
+        /// Scene TOML with a [stimulator] section (default: the embedded config/daemon.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Pose listener (port 0 picks a free port; the chosen one is printed).
+        #[arg(long, default_value = optistim::server::DEFAULT_LISTEN)]
+        listen: std::net::SocketAddr,
+        /// HTTP listener.
+        #[arg(long, default_value = optistim::server::DEFAULT_HTTP)]
+        http: std::net::SocketAddr,
+        /// Serial line with the binary protocol (e.g. /dev/ttyUSB0).
+        #[arg(long)]
+        serial: Option<String>,
+        #[arg(long, default_value_t = 115_200)]
+        baud: u32,
+        /// auto (fullscreen window when a display exists) | offscreen | window | cpu.
+        #[arg(long, default_value = "auto")]
+        present: String,
+        /// The stimulator's monitor for the window, by index or name.
+        #[arg(long, default_value = "0")]
+        monitor: String,
+        /// Also open the operator's preview window (with --present window).
+        #[arg(long)]
+        preview: bool,
+        /// free (latest pose wins) | lockstep (every pose, in order).
+        #[arg(long, default_value = "free")]
+        mode: String,
+        /// Record every received message (JSON lines) to this file.
+        #[arg(long)]
+        record: Option<PathBuf>,
+    },
+    /// Stream a pose file (trajectory CSV/JSONL or a recording) to a daemon and report the acks.
+    Replay {
+        file: PathBuf,
+        /// Poses per second.
+        #[arg(long, default_value_t = 10.0)]
+        rate: f64,
+        /// host:port, or serial:PATH[@BAUD].
+        #[arg(long, default_value = optistim::server::DEFAULT_LISTEN)]
+        to: String,
+        #[arg(long)]
+        frames: Option<usize>,
+        /// lockstep | free.
+        #[arg(long, default_value = "lockstep")]
+        mode: String,
+        /// Write the report (JSON) here as well as to stdout.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
     /// Time the stimulator's per-frame path on the GPU: F_eff -> screen region -> LUT pass ->
     /// presented off-screen and read back; per stage, with the CPU reference's agreement.
     BenchDisplay {
@@ -133,6 +185,36 @@ fn run() -> anyhow::Result<()> {
             })?;
             println!("{}", serde_json::to_string(&report)?);
         }
+        Command::Serve {
+            config: path,
+            listen,
+            http,
+            serial,
+            baud,
+            present,
+            monitor,
+            preview,
+            mode,
+            record,
+        } => serve(
+            path, listen, http, serial, baud, &present, monitor, preview, &mode, record,
+        )?,
+        Command::Replay {
+            file,
+            rate,
+            to,
+            frames,
+            mode,
+            report,
+        } => {
+            let mode = parse_mode(&mode)?;
+            let r = app::replay::run(&file, &to, rate, frames, mode)?;
+            let text = serde_json::to_string_pretty(&r)?;
+            if let Some(p) = report {
+                std::fs::write(&p, &text).with_context(|| format!("{}", p.display()))?;
+            }
+            println!("{}", serde_json::to_string(&r)?);
+        }
         Command::BenchDisplay {
             scene,
             screen,
@@ -174,6 +256,101 @@ fn run() -> anyhow::Result<()> {
             println!("{}", serde_json::to_string(&run)?);
         }
     }
+    Ok(())
+}
+
+fn parse_mode(s: &str) -> anyhow::Result<optistim::server::frames::Mode> {
+    serde_json::from_value(serde_json::Value::String(s.into()))
+        .with_context(|| format!("--mode {s}: allowed are free, lockstep"))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn serve(
+    path: Option<PathBuf>,
+    listen: std::net::SocketAddr,
+    http: std::net::SocketAddr,
+    serial: Option<String>,
+    baud: u32,
+    present: &str,
+    monitor: String,
+    preview: bool,
+    mode: &str,
+    record: Option<PathBuf>,
+) -> anyhow::Result<()> {
+    use optistim::server::{self, frames::PresenterChoice};
+    let (text, label) = match &path {
+        Some(p) => (
+            std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?,
+            p.display().to_string(),
+        ),
+        None => (
+            server::DEFAULT_CONFIG.to_string(),
+            "<embedded config/daemon.toml>".to_string(),
+        ),
+    };
+    let cfg = config::parse(&text, &label)?;
+    let sha = {
+        use sha2::Digest;
+        let d = sha2::Sha256::digest(text.as_bytes());
+        d.iter().map(|b| format!("{b:02x}")).collect::<String>()
+    };
+    let presenter = match present {
+        "auto" => PresenterChoice::Auto,
+        "offscreen" => PresenterChoice::Offscreen,
+        "cpu" => PresenterChoice::Cpu,
+        "window" => PresenterChoice::Window {
+            monitor: monitor.parse().expect("infallible"),
+            preview,
+        },
+        other => anyhow::bail!("--present {other}: allowed are auto, offscreen, window, cpu"),
+    };
+    let daemon = server::Server::start(server::ServeOptions {
+        config: cfg,
+        config_label: label.clone(),
+        config_sha256: sha,
+        listen,
+        http,
+        serial: serial.map(|s| (s, baud)),
+        presenter,
+        mode: parse_mode(mode)?,
+        record,
+    })?;
+    // The addresses as bound (port 0 picks a free one), for people and scripts.
+    println!(
+        "{}",
+        serde_json::json!({
+            "listening": daemon.tcp_addr.to_string(),
+            "http": format!("http://{}", daemon.http_addr),
+            "presenter": daemon.presenter,
+            "config": label,
+        })
+    );
+    wait_for_signal()?;
+    let report = daemon.shutdown();
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
+}
+
+/// Blocks until SIGINT or SIGTERM.
+fn wait_for_signal() -> anyhow::Result<()> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        #[cfg(unix)]
+        {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => r?,
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        tokio::signal::ctrl_c().await?;
+        tracing::info!("signal received: stopping");
+        Ok::<(), std::io::Error>(())
+    })?;
     Ok(())
 }
 

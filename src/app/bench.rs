@@ -193,7 +193,7 @@ pub fn run_display(
     }
     let st = st.clone();
     let mut maker = crate::pipeline::FrameMaker::new(&config)?;
-    let signal = maker.make(&config.pose, false)?.signal_e_per_s;
+    let signal = maker.render(&config.pose)?.signal_e_per_s;
     let stim = maker.stimulator().expect("has a [stimulator] section");
     let region_px = stim.resampler().region_px();
     let mut presenter = crate::display::Presenter::new_headless(st.screen_bits)?;

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod render;
+pub mod replay;
 pub mod show;
 
 #[derive(Debug, thiserror::Error)]
@@ -21,6 +22,10 @@ pub enum AppError {
     Pipeline(#[from] crate::pipeline::PipelineError),
     #[error(transparent)]
     Display(#[from] crate::display::DisplayError),
+    #[error("replay: {0}")]
+    Replay(String),
+    #[error(transparent)]
+    Server(#[from] crate::server::ServerError),
     #[error("{0}: the scene has no [stimulator] section")]
     NoStimulator(String),
     #[error("{path}: cannot create the output folder: {source}")]

@@ -28,7 +28,7 @@ pub fn run(
         .as_ref()
         .ok_or_else(|| AppError::NoStimulator(scene_name.to_string()))?;
     let mut maker = FrameMaker::new(config)?;
-    let made = maker.make(&config.pose, false)?;
+    let made = maker.render(&config.pose)?;
     let stimulator = maker
         .stimulator()
         .expect("the scene has a [stimulator] section");

@@ -178,6 +178,9 @@ impl Validator<'_> {
 
     /// A path in the file, relative to the file's folder (`join` keeps an absolute one).
     fn path(&self, p: &str) -> PathBuf {
+        if p.starts_with(crate::stimulator::calibration::BUILTIN) {
+            return PathBuf::from(p);
+        }
         Path::new(self.file)
             .parent()
             .map_or_else(|| PathBuf::from(p), |d| d.join(p))

@@ -29,11 +29,22 @@ pub fn write_png_gray(
     bit_depth: u32,
 ) -> Result<(), IoError> {
     let p = path.display().to_string();
-    let file = std::fs::File::create(path).map_err(|source| IoError::File {
+    let bytes = encode_png_gray(width, height, dn, bit_depth).map_err(|source| IoError::Png {
         path: p.clone(),
         source,
     })?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    std::fs::write(path, bytes).map_err(|source| IoError::File { path: p, source })
+}
+
+/// A grayscale PNG in memory: 8-bit when `bit_depth <= 8`, else 16-bit holding the raw DN.
+pub fn encode_png_gray(
+    width: usize,
+    height: usize,
+    dn: &[u16],
+    bit_depth: u32,
+) -> Result<Vec<u8>, png::EncodingError> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
     enc.set_color(png::ColorType::Grayscale);
     // Fast deflate: these images are written per frame; size matters less than time.
     enc.set_compression(png::Compression::Fast);
@@ -44,11 +55,8 @@ pub fn write_png_gray(
         enc.set_depth(png::BitDepth::Sixteen);
         dn.iter().flat_map(|&x| x.to_be_bytes()).collect()
     };
-    let png_err = |source| IoError::Png {
-        path: p.clone(),
-        source,
-    };
-    let mut w = enc.write_header().map_err(png_err)?;
-    w.write_image_data(&data).map_err(png_err)?;
-    w.finish().map_err(png_err)
+    let mut w = enc.write_header()?;
+    w.write_image_data(&data)?;
+    w.finish()?;
+    Ok(out)
 }

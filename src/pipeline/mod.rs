@@ -1,5 +1,6 @@
 //! One pose's way to the screen, off the async runtime: render -> detector signal -> the
-//! stimulator chain (F_eff, screen region, DN) -> the simulated camera's view of the screen.
+//! stimulator chain (F_eff, screen region, clip counts; DN on the CPU or the GPU), and the
+//! simulated camera that images the screen.
 //! [`FrameMaker`] holds the per-scene state (renderer pool and buffers, the stimulator with its
 //! current curve, the simulated camera) and reports every stage's time with every frame.
 
@@ -27,7 +28,6 @@ pub struct FrameTimings {
     pub render: f64,
     pub signal: f64,
     pub stimulator: f64,
-    pub camera: f64,
 }
 
 /// One pose, made.
@@ -36,10 +36,9 @@ pub struct MadeFrame {
     /// The flight camera's signal [e-/s] (camera pixels, row-major).
     pub signal_e_per_s: Vec<f64>,
     pub stats: FrameStats,
-    /// With a `[stimulator]` section: F_eff, the screen region and the screen's DN.
+    /// With a `[stimulator]` section: F_eff, the screen region, the clip counts, and (once
+    /// inverted) the screen's DN.
     pub stimulator: Option<StimulatorFrame>,
-    /// The simulated camera's image of the screen [DN], when asked for.
-    pub camera_dn: Option<Vec<u16>>,
     pub timings_ms: FrameTimings,
 }
 
@@ -48,7 +47,7 @@ pub struct FrameMaker {
     config: Config,
     renderer: Renderer,
     stimulator: Option<Stimulator>,
-    camera: Option<SimulatedCamera>,
+    camera: Option<Arc<SimulatedCamera>>,
 }
 
 impl FrameMaker {
@@ -61,7 +60,7 @@ impl FrameMaker {
                 let det = &config.scene.camera.detector;
                 (
                     Some(Stimulator::new(st, intr, det)?),
-                    Some(SimulatedCamera::from_config(st, intr, det)?),
+                    Some(Arc::new(SimulatedCamera::from_config(st, intr, det)?)),
                 )
             }
             None => (None, None),
@@ -88,8 +87,15 @@ impl FrameMaker {
         self.stimulator.as_mut().map(|s| s.replay(curve))
     }
 
-    /// Renders `pose`, runs the stimulator chain, and, when `capture`, the simulated camera.
-    pub fn make(&mut self, pose: &Pose, capture: bool) -> Result<MadeFrame, PipelineError> {
+    /// The simulated camera, shared (it images any screen of DN codes on any thread).
+    pub fn camera(&self) -> Option<&Arc<SimulatedCamera>> {
+        self.camera.as_ref()
+    }
+
+    /// Renders `pose` and runs the stimulator chain up to the screen region's F_eff and the
+    /// clip counts ([`Stimulator::prepare`]): the screen's codes come from the presenter
+    /// ([`crate::display`]) or from [`FrameMaker::invert_on_cpu`].
+    pub fn render(&mut self, pose: &Pose) -> Result<MadeFrame, PipelineError> {
         let mut t = FrameTimings::default();
         let t0 = Instant::now();
         let cfg = &self.config;
@@ -101,24 +107,29 @@ impl FrameMaker {
         t.signal = ms(t0);
         let t0 = Instant::now();
         let stimulator = match &self.stimulator {
-            Some(s) => Some(s.process(&signal)?),
+            Some(s) => Some(s.prepare(&signal)?),
             None => None,
         };
         t.stimulator = ms(t0);
-        let t0 = Instant::now();
-        let camera_dn = match (&self.camera, &stimulator, capture) {
-            (Some(cam), Some(st), true) => Some(cam.capture(&st.screen_dn, pose.frame_id)?.dn),
-            _ => None,
-        };
-        t.camera = ms(t0);
         Ok(MadeFrame {
             frame_id: pose.frame_id,
             signal_e_per_s: signal,
             stats: frame.stats,
             stimulator,
-            camera_dn,
             timings_ms: t,
         })
+    }
+
+    /// Fills the frame's screen codes on the CPU (the reference the GPU pass matches).
+    pub fn invert_on_cpu(&self, frame: &mut MadeFrame) {
+        if let (Some(s), Some(f)) = (&self.stimulator, frame.stimulator.as_mut()) {
+            s.invert(f);
+        }
+    }
+
+    /// Replaces the render settings (accuracy and speed knobs) from the next frame on.
+    pub fn set_settings(&mut self, settings: crate::render::Settings) {
+        self.config.settings = settings;
     }
 }
 

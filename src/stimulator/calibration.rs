@@ -30,6 +30,12 @@ use std::path::Path;
 /// Fewest measured points a curve may have.
 pub const MIN_POINTS: usize = 4;
 
+/// A calibration path of the form `builtin:NAME` names a curve built into the binary (the
+/// daemon's embedded default configuration uses `builtin:example_gamma22`).
+pub const BUILTIN: &str = "builtin:";
+/// `calibration/example_gamma22.csv`, built in.
+pub const EXAMPLE_GAMMA22: &str = include_str!("../../calibration/example_gamma22.csv");
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CalibrationError {
     #[error("{file}: cannot read: {message}")]
@@ -100,6 +106,15 @@ pub struct ClipCounts {
 impl Curve {
     pub fn load(path: &Path, interp: Interp) -> Result<Curve, CalibrationError> {
         let file = path.display().to_string();
+        if let Some(name) = file.strip_prefix(BUILTIN) {
+            return match name {
+                "example_gamma22" => Curve::parse(EXAMPLE_GAMMA22.as_bytes(), name, &file, interp),
+                _ => Err(CalibrationError::Read {
+                    file: file.clone(),
+                    message: "unknown built-in curve; built in: example_gamma22".into(),
+                }),
+            };
+        }
         let bytes = std::fs::read(path).map_err(|e| CalibrationError::Read {
             file: file.clone(),
             message: e.to_string(),
@@ -592,7 +607,7 @@ fn pchip_slopes(x: &[f64], y: &[f64]) -> Vec<f64> {
 pub(crate) mod tests {
     use super::*;
 
-    pub const EXAMPLE: &str = include_str!("../../calibration/example_gamma22.csv");
+    pub const EXAMPLE: &str = super::EXAMPLE_GAMMA22;
 
     fn curve(text: &str, interp: Interp) -> Result<Curve, CalibrationError> {
         Curve::parse(text.as_bytes(), "t", "t.csv", interp)

@@ -104,6 +104,17 @@ impl SimulatedCamera {
 
     /// Images a whole screen of DN codes (`screen_px`, row-major).
     pub fn capture(&self, screen_dn: &[u16], frame_id: u64) -> Result<Capture, StimulatorError> {
+        self.capture_exposed(screen_dn, frame_id, None)
+    }
+
+    /// As [`SimulatedCamera::capture`], with this frame's exposure [s] instead of the
+    /// detector's when given.
+    pub fn capture_exposed(
+        &self,
+        screen_dn: &[u16],
+        frame_id: u64,
+        exposure_s: Option<f64>,
+    ) -> Result<Capture, StimulatorError> {
         let [sw, sh] = self.screen_px;
         if screen_dn.len() != sw * sh {
             return Err(StimulatorError::ImageSize {
@@ -126,7 +137,14 @@ impl SimulatedCamera {
         self.resampler.to_camera(&emitted, &mut feff_w_m2);
         let signal_e_per_s: Vec<f64> = feff_w_m2.iter().map(|f| f / self.k).collect();
         let mut dn = Vec::new();
-        self.detector.expose(&signal_e_per_s, frame_id, &mut dn);
+        match exposure_s {
+            Some(t) => {
+                let mut detector = self.detector.clone();
+                detector.exposure_s = t;
+                detector.expose(&signal_e_per_s, frame_id, &mut dn);
+            }
+            None => self.detector.expose(&signal_e_per_s, frame_id, &mut dn),
+        }
         Ok(Capture {
             feff_w_m2,
             signal_e_per_s,

@@ -173,6 +173,12 @@ impl Stimulator {
     /// One frame: `signal_e_per_s` is the flight camera's signal image (row-major).
     pub fn process(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
         let mut frame = self.region(signal_e_per_s)?;
+        self.invert(&mut frame);
+        Ok(frame)
+    }
+
+    /// The CPU inversion of a prepared frame: fills `screen_dn` and the clip counts.
+    pub fn invert(&self, frame: &mut StimulatorFrame) {
         let t0 = Instant::now();
         let [rw, rh] = self.resampler.region_px();
         let mut region = Vec::new();
@@ -187,7 +193,6 @@ impl Stimulator {
             frame.screen_dn[dst..dst + rw].copy_from_slice(row);
         }
         frame.timings_ms.invert = ms(t0);
-        Ok(frame)
     }
 
     /// One frame up to the screen region's F_eff, for a presenter that inverts on the GPU:

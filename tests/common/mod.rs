@@ -112,3 +112,167 @@ pub fn rendered_signal(cfg: &Config) -> Vec<f64> {
         .unwrap();
     det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun))
 }
+
+/// A daemon started in this process on free loopback ports, with `config_text` (a scene with
+/// a `[stimulator]` section) and the presenter chosen.
+pub fn start_daemon(
+    config_text: &str,
+    presenter: optistim::server::frames::PresenterChoice,
+    mode: optistim::server::frames::Mode,
+    serial: Option<String>,
+    record: Option<std::path::PathBuf>,
+) -> optistim::server::Server {
+    let cfg = config::parse(config_text, "<test daemon>").unwrap_or_else(|e| panic!("{e}"));
+    optistim::server::Server::start(optistim::server::ServeOptions {
+        config: cfg,
+        config_label: "<test daemon>".into(),
+        config_sha256: "test".into(),
+        listen: "127.0.0.1:0".parse().unwrap(),
+        http: "127.0.0.1:0".parse().unwrap(),
+        serial: serial.map(|s| (s, 115_200)),
+        presenter,
+        mode,
+        record,
+    })
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The daemon's default scene made small (a 256 x 256 camera on a 512 x 512 screen), for
+/// tests that exercise the protocol rather than the picture.
+pub fn small_daemon_config() -> String {
+    optistim::server::DEFAULT_CONFIG
+        .replace("resolution_px = [1024, 1024]", "resolution_px = [256, 256]")
+        .replace(
+            "screen_resolution_px = [1920, 1200]",
+            "screen_resolution_px = [512, 512]",
+        )
+}
+
+/// One HTTP/1.1 request with `Connection: close`: the status code and the body.
+pub fn http(addr: std::net::SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, Vec<u8>) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(std::time::Duration::from_secs(60)))
+        .unwrap();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: test\r\nConnection: close\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    )
+    .unwrap();
+    s.write_all(body).unwrap();
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).unwrap();
+    let split = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("HTTP header");
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let status: u16 = head.split_whitespace().nth(1).unwrap().parse().unwrap();
+    let mut body = raw[split + 4..].to_vec();
+    if head
+        .to_ascii_lowercase()
+        .contains("transfer-encoding: chunked")
+    {
+        body = dechunk(&body);
+    }
+    (status, body)
+}
+
+fn dechunk(mut b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let Some(eol) = b.windows(2).position(|w| w == b"\r\n") else {
+            return out;
+        };
+        let n = usize::from_str_radix(std::str::from_utf8(&b[..eol]).unwrap().trim(), 16).unwrap();
+        if n == 0 {
+            return out;
+        }
+        out.extend_from_slice(&b[eol + 2..eol + 2 + n]);
+        b = &b[eol + 2 + n + 2..];
+    }
+}
+
+/// A blocking protocol client for tests: binary frames over TCP.
+pub struct Client {
+    pub stream: std::net::TcpStream,
+    decoder: optistim::server::protocol::Decoder,
+}
+
+impl Client {
+    pub fn connect(addr: std::net::SocketAddr) -> Client {
+        let stream = std::net::TcpStream::connect(addr).unwrap();
+        stream.set_nodelay(true).unwrap();
+        Client {
+            stream,
+            decoder: optistim::server::protocol::Decoder::new(u32::MAX),
+        }
+    }
+
+    pub fn send_raw(&mut self, bytes: &[u8]) {
+        use std::io::Write;
+        self.stream.write_all(bytes).unwrap();
+    }
+
+    pub fn send(&mut self, m: &optistim::server::protocol::Message) {
+        self.send_raw(&m.encode());
+    }
+
+    /// The next message, or `None` after `timeout`.
+    pub fn recv(
+        &mut self,
+        timeout: std::time::Duration,
+    ) -> Option<optistim::server::protocol::Message> {
+        use optistim::server::protocol::Decoded;
+        use std::io::Read;
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            match self.decoder.next() {
+                Decoded::Message(m) => return Some(m),
+                Decoded::Error(e) => panic!("the daemon sent a bad frame: {e}"),
+                Decoded::NeedMore => {}
+            }
+            let left = deadline.checked_duration_since(std::time::Instant::now())?;
+            self.stream
+                .set_read_timeout(Some(left.max(std::time::Duration::from_millis(1))))
+                .unwrap();
+            let mut buf = [0u8; 65536];
+            match self.stream.read(&mut buf) {
+                Ok(0) => return None,
+                Ok(n) => self.decoder.push(&buf[..n]),
+                Err(_) => return None,
+            }
+        }
+    }
+}
+
+/// A pose the default daemon scene renders: the NRHO stream's first row.
+pub fn nrho_pose(frame_id: u64) -> optistim::server::protocol::PoseMsg {
+    optistim::server::protocol::PoseMsg {
+        frame_id,
+        time_tag_s: frame_id as f64,
+        camera_position_m: [-13138330.133, 0.0, -69999778.510],
+        attitude_wxyz: [
+            0.704066432124,
+            -0.065501596596,
+            0.065501596596,
+            -0.704066432124,
+        ],
+        sun_position_m: [-21942843927.655, -147906691958.697, -4652417884.904],
+        body_attitude_wxyz: None,
+        exposure_s: None,
+    }
+}
+
+/// This process's resident memory [bytes] (Linux).
+pub fn rss_bytes() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        })
+        .map_or(0, |kb| kb * 1024)
+}

@@ -1,0 +1,333 @@
+//! One client connection, TCP or serial: reads messages (binary frames, or JSON lines when a
+//! TCP client's first byte is `{`), answers each, records each, and hands poses to the frame
+//! pipeline. A bad message gets an `error` and the connection stays usable; a client that does
+//! not read loses its own messages (counted), never the daemon's memory; a vanished client
+//! only ends its own connection.
+
+use super::frames::Job;
+use super::protocol::{
+    self, Decoded, Decoder, ErrorCode, MAX_INBOUND_PAYLOAD, MAX_JSON_LINE, Message, PoseMsg,
+    ProtocolError,
+};
+use super::{Outbound, RuntimePatch, Shared};
+use crate::geometry::body_from_camera_wxyz;
+use crate::scene::Pose;
+use glam::DVec3;
+use std::sync::Arc;
+use std::time::Instant;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpListener;
+
+/// Messages waiting for a client before newer ones are dropped (a camera frame of 1024^2 is
+/// 2 MiB: 16 of them bound a non-reading subscriber's cost).
+const OUTBOUND_QUEUE: usize = 16;
+
+/// Accepts pose connections until shutdown.
+pub async fn accept(listener: TcpListener, shared: Arc<Shared>) {
+    let mut stop = shared.shutdown.clone();
+    loop {
+        tokio::select! {
+            r = listener.accept() => match r {
+                Ok((stream, peer)) => {
+                    let _ = stream.set_nodelay(true);
+                    tokio::spawn(serve(stream, format!("tcp:{peer}"), Wire::Sniff, shared.clone()));
+                }
+                Err(e) => {
+                    tracing::warn!("accept: {e}");
+                    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                }
+            },
+            _ = stop.changed() => break,
+        }
+    }
+}
+
+/// How a connection's bytes are framed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wire {
+    Binary,
+    Json,
+    /// Decided by the first byte: `{` is JSON lines, anything else binary.
+    Sniff,
+}
+
+/// Serves one connection until it closes or the daemon stops.
+pub async fn serve<S>(stream: S, peer: String, wire: Wire, shared: Arc<Shared>)
+where
+    S: AsyncRead + AsyncWrite + Send + 'static,
+{
+    let (mut rd, mut wr) = tokio::io::split(stream);
+    let (out, mut outbound) = shared.outbound(OUTBOUND_QUEUE);
+    shared.stats.clients.inc();
+    tracing::info!(%peer, "client connected");
+    let mut wire = wire;
+    let (wire_tx, mut wire_rx) = tokio::sync::watch::channel(wire);
+    // The writer: encodes in the connection's wire format.
+    let writer = tokio::spawn(async move {
+        while let Some(m) = outbound.recv().await {
+            let w = *wire_rx.borrow_and_update();
+            let bytes = match w {
+                Wire::Json => protocol::encode_json(&m),
+                _ => m.encode(),
+            };
+            if wr.write_all(&bytes).await.is_err() {
+                break; // the client vanished
+            }
+        }
+        let _ = wr.shutdown().await;
+    });
+
+    let mut conn = Conn {
+        shared: shared.clone(),
+        out: out.clone(),
+        peer: peer.clone(),
+    };
+    let mut decoder = Decoder::new(MAX_INBOUND_PAYLOAD);
+    let mut line = Vec::new();
+    let mut skipping_line = false;
+    let mut buf = vec![0u8; 16 * 1024];
+    let mut stop = shared.shutdown.clone();
+    loop {
+        let n = tokio::select! {
+            r = rd.read(&mut buf) => match r {
+                Ok(0) | Err(_) => break,
+                Ok(n) => n,
+            },
+            _ = stop.changed() => break,
+        };
+        let bytes = &buf[..n];
+        if wire == Wire::Sniff {
+            let first = bytes.iter().find(|b| !b.is_ascii_whitespace());
+            if let Some(&b) = first {
+                wire = if b == b'{' { Wire::Json } else { Wire::Binary };
+                let _ = wire_tx.send(wire);
+            }
+        }
+        match wire {
+            Wire::Json => {
+                for &b in bytes {
+                    if b == b'\n' {
+                        if !skipping_line {
+                            let text = String::from_utf8_lossy(&line).into_owned();
+                            if !text.trim().is_empty() {
+                                conn.json_line(&text);
+                            }
+                        }
+                        line.clear();
+                        skipping_line = false;
+                    } else if !skipping_line {
+                        line.push(b);
+                        if line.len() > MAX_JSON_LINE {
+                            conn.error(ProtocolError::new(
+                                ErrorCode::TooLong,
+                                format!("JSON line longer than {MAX_JSON_LINE} bytes skipped"),
+                            ));
+                            line.clear();
+                            skipping_line = true;
+                        }
+                    }
+                }
+            }
+            _ => {
+                decoder.push(bytes);
+                loop {
+                    match decoder.next() {
+                        Decoded::Message(m) => conn.message(m),
+                        Decoded::Error(e) => conn.error(e),
+                        Decoded::NeedMore => break,
+                    }
+                }
+            }
+        }
+    }
+    if let Some(e) = decoder.finish() {
+        conn.error(e);
+    }
+    if !line.is_empty() && !skipping_line {
+        conn.error(ProtocolError::new(
+            ErrorCode::Truncated,
+            format!("the stream ended inside a JSON line ({} bytes)", line.len()),
+        ));
+    }
+    shared.subscribe(&out, false);
+    drop(conn);
+    drop(out);
+    // The writer ends once every queued message (acks of frames still rendering included)
+    // is written or the client is gone.
+    let _ = tokio::time::timeout(std::time::Duration::from_secs(5), writer).await;
+    shared.stats.clients.dec();
+    tracing::info!(%peer, "client disconnected");
+}
+
+/// A connection's message handling.
+struct Conn {
+    shared: Arc<Shared>,
+    out: Outbound,
+    peer: String,
+}
+
+impl Conn {
+    fn json_line(&mut self, text: &str) {
+        match protocol::decode_json(text) {
+            Ok(m) => self.message(m),
+            Err(e) => self.error(e),
+        }
+    }
+
+    fn error(&mut self, e: ProtocolError) {
+        self.shared.stats.protocol_errors.inc();
+        tracing::debug!(peer = %self.peer, "bad message: {e}");
+        if let Some(r) = &self.shared.recorder {
+            r.error(&self.peer, self.shared.ns(Instant::now()), &e);
+        }
+        self.out.send(Message::from(e));
+    }
+
+    fn message(&mut self, m: Message) {
+        let received = Instant::now();
+        if let Some(r) = &self.shared.recorder {
+            r.message(&self.peer, self.shared.ns(received), &m);
+        }
+        match m {
+            Message::Hello {
+                version_min,
+                version_max,
+                client,
+            } => {
+                if !(version_min..=version_max).contains(&protocol::VERSION) {
+                    return self.error(ProtocolError::new(
+                        ErrorCode::BadVersion,
+                        format!(
+                            "client {client:?} speaks versions {version_min}-{version_max}; \
+                             this daemon speaks {}",
+                            protocol::VERSION
+                        ),
+                    ));
+                }
+                let mode = serde_json::to_value(self.shared.runtime().mode)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_string))
+                    .unwrap_or_default();
+                self.out.send(Message::HelloAck {
+                    version: protocol::VERSION,
+                    server: format!("optistim {}", env!("CARGO_PKG_VERSION")),
+                    mode,
+                });
+            }
+            Message::Pose(p) => {
+                self.shared.stats.poses_received.inc();
+                let frame_id = p.frame_id;
+                let (pose, exposure_s) = match to_pose(&p) {
+                    Ok(x) => x,
+                    Err(mut e) => {
+                        e.frame_id = Some(frame_id);
+                        return self.error(e);
+                    }
+                };
+                let job = Job {
+                    pose,
+                    exposure_s,
+                    received,
+                    reply: self.out.clone(),
+                };
+                match self.shared.intake.push(job, self.shared.runtime().mode) {
+                    Ok(dropped) => {
+                        for d in dropped {
+                            self.shared.stats.poses_dropped.inc();
+                            d.reply.send(Message::Ack(protocol::AckMsg {
+                                frame_id: d.pose.frame_id,
+                                status: protocol::AckStatus::Dropped,
+                                received_ns: self.shared.ns(d.received),
+                                render_start_ns: 0,
+                                render_end_ns: 0,
+                                presented_ns: 0,
+                                render_ms: 0.0,
+                                clipped_black: 0,
+                                clipped_below_dark: 0,
+                                clipped_above_max: 0,
+                                calibration_id: String::new(),
+                            }));
+                        }
+                    }
+                    Err((_, e)) => self.error(e),
+                }
+            }
+            Message::Config { json } => {
+                let patch: Result<RuntimePatch, _> = serde_json::from_str(&json);
+                match patch
+                    .map_err(|e| e.to_string())
+                    .and_then(|p| self.shared.apply(p))
+                {
+                    Ok(r) => self.out.send(Message::ConfigAck {
+                        json: serde_json::to_string(&r).unwrap_or_default(),
+                    }),
+                    Err(e) => self.error(ProtocolError::new(
+                        ErrorCode::BadConfig,
+                        format!("config {json}: {e}"),
+                    )),
+                }
+            }
+            Message::Subscribe { camera } => self.shared.subscribe(&self.out, camera),
+            Message::Trigger => self
+                .shared
+                .intake
+                .control(super::frames::Control::Trigger(self.out.clone())),
+            other => self.error(ProtocolError::new(
+                ErrorCode::UnknownType,
+                format!(
+                    "message type {:#04x} goes from the daemon to clients, not back",
+                    other.kind()
+                ),
+            )),
+        }
+    }
+}
+
+/// A pose message as the renderer's pose, and its exposure: every value finite, unit
+/// quaternions (within 1e-6, then normalised), a positive exposure.
+pub fn to_pose(p: &PoseMsg) -> Result<(Pose, Option<f64>), ProtocolError> {
+    let bad = |m: String| ProtocolError::new(ErrorCode::BadValue, m);
+    let finite = |name: &str, v: &[f64]| {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(())
+        } else {
+            Err(bad(format!("{name} {v:?} is not finite")))
+        }
+    };
+    finite("time_tag_s", &[p.time_tag_s])?;
+    finite("camera_position_m", &p.camera_position_m)?;
+    finite("attitude_wxyz", &p.attitude_wxyz)?;
+    finite("sun_position_m", &p.sun_position_m)?;
+    let unit = |name: &str, q: [f64; 4]| {
+        let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if (n - 1.0).abs() > 1e-6 {
+            Err(bad(format!(
+                "{name} {q:?} has norm {n}, not 1 (within 1e-6)"
+            )))
+        } else {
+            Ok(body_from_camera_wxyz(q.map(|x| x / n)))
+        }
+    };
+    let world_from_camera = unit("attitude_wxyz", p.attitude_wxyz)?;
+    let body_from_world = match p.body_attitude_wxyz {
+        Some(q) => {
+            finite("body_attitude_wxyz", &q)?;
+            unit("body_attitude_wxyz", q)?.inverse()
+        }
+        None => glam::DQuat::IDENTITY,
+    };
+    if let Some(e) = p.exposure_s
+        && !(e.is_finite() && e > 0.0)
+    {
+        return Err(bad(format!("exposure_s {e} must be positive and finite")));
+    }
+    Ok((
+        Pose {
+            frame_id: p.frame_id,
+            camera_position_m: body_from_world * DVec3::from_array(p.camera_position_m),
+            body_from_camera: body_from_world * world_from_camera,
+            sun_position_m: body_from_world * DVec3::from_array(p.sun_position_m),
+        },
+        p.exposure_s,
+    ))
+}

@@ -1,0 +1,207 @@
+//! HTTP control and monitoring (its own port): health, status, Prometheus metrics, the latest
+//! screen and camera images, calibration replay, run-time settings and a small live
+//! dashboard. Images are encoded on the blocking pool, never on the runtime's workers.
+
+use super::Shared;
+use super::frames::Control;
+use crate::stimulator::calibration::Curve;
+use axum::Router;
+use axum::body::Bytes;
+use axum::extract::State;
+use axum::http::{StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use serde_json::json;
+use std::sync::Arc;
+use tokio::net::TcpListener;
+
+const DASHBOARD: &str = include_str!("dashboard.html");
+
+pub async fn serve(listener: TcpListener, shared: Arc<Shared>) {
+    let mut stop = shared.shutdown.clone();
+    let app = Router::new()
+        .route("/", get(|| async { Html(DASHBOARD) }))
+        .route("/health", get(|| async { "ok\n" }))
+        .route("/status", get(status))
+        .route("/metrics", get(metrics))
+        .route("/frame/latest.png", get(frame_png))
+        .route("/camera/latest.png", get(camera_png))
+        .route(
+            "/calibration",
+            axum::routing::put(put_calibration).get(get_calibration),
+        )
+        .route("/config", get(get_config).put(put_config))
+        .with_state(shared);
+    let r = axum::serve(listener, app)
+        .with_graceful_shutdown(async move {
+            let _ = stop.changed().await;
+        })
+        .await;
+    if let Err(e) = r {
+        tracing::error!("HTTP server: {e}");
+    }
+}
+
+async fn status(State(s): State<Arc<Shared>>) -> Response {
+    let (fps, [p50, p99, max], recent) = s.stats.summary();
+    let (id, sha) = s
+        .calibration
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    let latest = s
+        .latest
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .as_ref()
+        .map(|l| l.frame_id);
+    axum::Json(json!({
+        "fps": fps,
+        "latency_ms": {"p50": p50, "p99": p99, "max": max},
+        "recent_latency_ms": recent,
+        "frames_presented": s.stats.frames_presented.get(),
+        "poses_received": s.stats.poses_received.get(),
+        "drops": s.stats.poses_dropped.get(),
+        "protocol_errors": s.stats.protocol_errors.get(),
+        "render_failures": s.stats.render_failures.get(),
+        "undelivered_messages": s.stats.undelivered.get(),
+        "clients": s.stats.clients.get(),
+        "calibration": {"id": id, "sha256": sha},
+        "config": {"source": s.config_label, "sha256": s.config_sha256},
+        "runtime": s.runtime(),
+        "presenter": s.presenter,
+        "latest_frame_id": latest,
+    }))
+    .into_response()
+}
+
+async fn metrics(State(s): State<Arc<Shared>>) -> Response {
+    let mut text = String::new();
+    match prometheus_client::encoding::text::encode(&mut text, &s.stats.registry) {
+        Ok(()) => (
+            [(
+                header::CONTENT_TYPE,
+                "application/openmetrics-text; version=1.0.0; charset=utf-8",
+            )],
+            text,
+        )
+            .into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+fn png(bytes: Result<Vec<u8>, String>) -> Response {
+    match bytes {
+        Ok(b) => ([(header::CONTENT_TYPE, "image/png")], b).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
+    }
+}
+
+fn no_frame() -> Response {
+    (StatusCode::NOT_FOUND, "no frame presented yet\n").into_response()
+}
+
+/// The latest screen, its DN codes in a 16-bit PNG.
+async fn frame_png(State(s): State<Arc<Shared>>) -> Response {
+    let Some(latest) = s.latest.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
+        return no_frame();
+    };
+    let r = tokio::task::spawn_blocking(move || {
+        let [w, h] = latest.screen_px;
+        crate::io::encode_png_gray(w, h, &latest.dn, 16).map_err(|e| e.to_string())
+    })
+    .await;
+    png(r.unwrap_or_else(|e| Err(e.to_string())))
+}
+
+/// The simulated camera's image of the latest screen, in its DN.
+async fn camera_png(State(s): State<Arc<Shared>>) -> Response {
+    let Some(latest) = s.latest.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
+        return no_frame();
+    };
+    let Some(camera) = s.camera.clone() else {
+        return (StatusCode::NOT_FOUND, "no simulated camera\n").into_response();
+    };
+    let r = tokio::task::spawn_blocking(move || {
+        let c = camera
+            .capture_exposed(&latest.dn, latest.frame_id, latest.exposure_s)
+            .map_err(|e| e.to_string())?;
+        let [w, h] = camera.camera_px();
+        crate::io::encode_png_gray(w, h, &c.dn, camera.detector().bit_depth)
+            .map_err(|e| e.to_string())
+    })
+    .await;
+    png(r.unwrap_or_else(|e| Err(e.to_string())))
+}
+
+async fn get_calibration(State(s): State<Arc<Shared>>) -> Response {
+    let (id, sha) = s
+        .calibration
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    axum::Json(json!({"id": id, "sha256": sha})).into_response()
+}
+
+/// Replays an uploaded curve (the CSV of `calibration/README.md`). A curve that does not
+/// validate is refused with the reason, and the active one stays.
+async fn put_calibration(State(s): State<Arc<Shared>>, body: Bytes) -> Response {
+    let interp = s
+        .scene
+        .stimulator
+        .as_ref()
+        .map(|st| st.interp)
+        .unwrap_or_default();
+    let sha = {
+        use sha2::Digest;
+        let d = sha2::Sha256::digest(&body);
+        d.iter().map(|b| format!("{b:02x}")).collect::<String>()
+    };
+    let id = format!("uploaded-{}", &sha[..12]);
+    let curve = match Curve::parse(&body, &id, "PUT /calibration", interp) {
+        Ok(c) => Arc::new(c),
+        Err(e) => {
+            return (
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("curve refused, the active one stays: {e}\n"),
+            )
+                .into_response();
+        }
+    };
+    let (tx, rx) = std::sync::mpsc::channel();
+    s.intake.control(Control::Replay(curve.clone(), tx));
+    let answer = tokio::task::spawn_blocking(move || {
+        rx.recv_timeout(std::time::Duration::from_secs(30))
+            .map_err(|_| "the frame thread did not answer".to_string())
+            .and_then(|r| r)
+    })
+    .await
+    .unwrap_or_else(|e| Err(e.to_string()));
+    match answer {
+        Ok(()) => {
+            tracing::info!(id = %curve.id, sha256 = %curve.sha256, "calibration replayed");
+            axum::Json(json!({"id": curve.id, "sha256": curve.sha256})).into_response()
+        }
+        Err(e) => (
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("curve not applied: {e}\n"),
+        )
+            .into_response(),
+    }
+}
+
+async fn get_config(State(s): State<Arc<Shared>>) -> Response {
+    axum::Json(s.runtime()).into_response()
+}
+
+async fn put_config(State(s): State<Arc<Shared>>, body: Bytes) -> Response {
+    let patch: Result<super::RuntimePatch, _> = serde_json::from_slice(&body);
+    match patch.map_err(|e| e.to_string()).and_then(|p| s.apply(p)) {
+        Ok(r) => axum::Json(r).into_response(),
+        Err(e) => (
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("config refused: {e}\n"),
+        )
+            .into_response(),
+    }
+}

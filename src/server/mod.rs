@@ -1,0 +1,510 @@
+//! The daemon (`optistim serve`): pose streams over TCP and serial ([`protocol`],
+//! [`connection`], [`serial`]), the frame pipeline on its own thread ([`frames`]), HTTP
+//! control and monitoring ([`http`]) and the recording of every received message
+//! ([`record`]).
+//!
+//! Threads: a tokio runtime runs the listeners, the connections and HTTP; one frame thread
+//! renders and presents (rendering never runs on the runtime; the render pool is its own
+//! rayon pool); with a window, one display thread runs the winit event loop; a serial line
+//! has a reader and a writer thread. They meet in [`Shared`] and the [`frames::Intake`].
+
+pub mod connection;
+pub mod frames;
+pub mod http;
+pub mod protocol;
+pub mod record;
+pub mod serial;
+
+use crate::config::Config;
+use crate::pipeline::FrameMaker;
+use crate::stimulator::camera::SimulatedCamera;
+use frames::{FrameThread, Intake, Mode, PresenterChoice};
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::Histogram;
+use prometheus_client::registry::Registry;
+use protocol::Message;
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+use tokio::sync::{mpsc, watch};
+
+/// The embedded default scene: the NRHO camera's Lambert Moon on a RETINA-like screen with
+/// the built-in example calibration (`config/daemon.toml`).
+pub const DEFAULT_CONFIG: &str = include_str!("../../config/daemon.toml");
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
+pub const DEFAULT_HTTP: &str = "127.0.0.1:7879";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error("{what} {addr}: {source}")]
+    Bind {
+        what: &'static str,
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("the scene has no [stimulator] section: the daemon drives a screen")]
+    NoStimulator,
+    #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
+    #[error("recording {path}: {source}")]
+    Record {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("serial line {path}: {message}")]
+    Serial { path: String, message: String },
+    #[error("runtime: {0}")]
+    Runtime(String),
+}
+
+/// How to run the daemon.
+pub struct ServeOptions {
+    pub config: Config,
+    /// Where the config came from (a path, or the embedded default), and its text's SHA-256.
+    pub config_label: String,
+    pub config_sha256: String,
+    pub listen: SocketAddr,
+    pub http: SocketAddr,
+    pub serial: Option<(String, u32)>,
+    pub presenter: PresenterChoice,
+    pub mode: Mode,
+    pub record: Option<PathBuf>,
+}
+
+/// Settings that may change while the daemon runs (`GET/PUT /config`, the `config` message).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RuntimeConfig {
+    pub mode: Mode,
+    /// Render into the hold buffer; present on a trigger.
+    pub hold: bool,
+    /// The renderer's settings preset (`default` | `high_accuracy`).
+    pub preset: String,
+}
+
+/// A change to [`RuntimeConfig`]: only the keys given change.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RuntimePatch {
+    pub mode: Option<Mode>,
+    pub hold: Option<bool>,
+    pub preset: Option<String>,
+}
+
+/// The latest presented screen.
+pub struct ScreenImage {
+    pub frame_id: u64,
+    pub exposure_s: Option<f64>,
+    pub screen_px: [usize; 2],
+    pub bits: u32,
+    pub dn: Vec<u16>,
+}
+
+/// A connection's outbound queue: bounded, so that a client that does not read cannot grow
+/// the daemon's memory; what does not fit is counted and dropped.
+#[derive(Clone)]
+pub struct Outbound {
+    pub conn: u64,
+    tx: mpsc::Sender<Message>,
+    undelivered: Counter,
+}
+
+impl Outbound {
+    pub fn send(&self, m: Message) {
+        if self.tx.try_send(m).is_err() {
+            self.undelivered.inc();
+        }
+    }
+}
+
+/// The daemon's counters and recent frame times.
+pub struct Stats {
+    pub registry: Registry,
+    pub poses_received: Counter,
+    pub frames_presented: Counter,
+    pub poses_dropped: Counter,
+    pub protocol_errors: Counter,
+    pub render_failures: Counter,
+    pub undelivered: Counter,
+    pub clients: Gauge,
+    pub latency_seconds: Histogram,
+    pub render_seconds: Histogram,
+    /// (presented at, latency ms, render ms) of the last frames.
+    recent: Mutex<VecDeque<(Instant, f64, f64)>>,
+}
+
+const RECENT: usize = 1000;
+
+impl Stats {
+    fn new() -> Stats {
+        let mut registry = Registry::with_prefix("optistim");
+        let buckets = || {
+            Histogram::new(prometheus_client::metrics::histogram::exponential_buckets(
+                0.001, 1.6, 16,
+            ))
+        };
+        let s = Stats {
+            poses_received: Counter::default(),
+            frames_presented: Counter::default(),
+            poses_dropped: Counter::default(),
+            protocol_errors: Counter::default(),
+            render_failures: Counter::default(),
+            undelivered: Counter::default(),
+            clients: Gauge::default(),
+            latency_seconds: buckets(),
+            render_seconds: buckets(),
+            recent: Mutex::new(VecDeque::with_capacity(RECENT)),
+            registry: Registry::default(),
+        };
+        registry.register("poses_received", "Poses received", s.poses_received.clone());
+        registry.register(
+            "frames_presented",
+            "Frames presented",
+            s.frames_presented.clone(),
+        );
+        registry.register(
+            "poses_dropped",
+            "Poses replaced by a newer one before rendering (free-running)",
+            s.poses_dropped.clone(),
+        );
+        registry.register(
+            "protocol_errors",
+            "Bad messages answered with an error",
+            s.protocol_errors.clone(),
+        );
+        registry.register(
+            "render_failures",
+            "Poses that could not be rendered or presented",
+            s.render_failures.clone(),
+        );
+        registry.register(
+            "undelivered_messages",
+            "Messages to clients dropped because the client did not read them",
+            s.undelivered.clone(),
+        );
+        registry.register("clients", "Connected clients", s.clients.clone());
+        registry.register(
+            "latency_seconds",
+            "Pose received to frame presented",
+            s.latency_seconds.clone(),
+        );
+        registry.register(
+            "render_seconds",
+            "Render and stimulator chain per frame",
+            s.render_seconds.clone(),
+        );
+        Stats { registry, ..s }
+    }
+
+    fn record_frame(&self, latency_ms: f64, render_ms: f64) {
+        self.frames_presented.inc();
+        self.latency_seconds.observe(latency_ms * 1e-3);
+        self.render_seconds.observe(render_ms * 1e-3);
+        let mut r = self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        if r.len() == RECENT {
+            r.pop_front();
+        }
+        r.push_back((Instant::now(), latency_ms, render_ms));
+    }
+
+    /// Frames per second over the last 5 s, latency percentiles [ms] over the last frames,
+    /// and the last 200 latencies (for the dashboard's chart).
+    pub fn summary(&self) -> (f64, [f64; 3], Vec<f64>) {
+        let r = self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        let now = Instant::now();
+        let fps = r
+            .iter()
+            .filter(|(t, ..)| now - *t < std::time::Duration::from_secs(5))
+            .count() as f64
+            / 5.0;
+        let mut l: Vec<f64> = r.iter().map(|x| x.1).collect();
+        let last = l[l.len().saturating_sub(200)..].to_vec();
+        l.sort_by(f64::total_cmp);
+        let q = |p: f64| {
+            l.get(((l.len().max(1) - 1) as f64 * p).round() as usize)
+                .copied()
+                .unwrap_or(0.0)
+        };
+        (fps, [q(0.5), q(0.99), q(1.0)], last)
+    }
+}
+
+/// What the connections, HTTP and the frame thread share.
+pub struct Shared {
+    epoch: Instant,
+    pub stats: Stats,
+    runtime: Mutex<RuntimeConfig>,
+    pub latest: Mutex<Option<Arc<ScreenImage>>>,
+    /// The active curve's id and SHA-256.
+    pub calibration: Mutex<(String, String)>,
+    pub config_label: String,
+    pub config_sha256: String,
+    pub presenter: String,
+    pub scene: Config,
+    pub camera: Option<Arc<SimulatedCamera>>,
+    subscribers: Mutex<Vec<Outbound>>,
+    pub intake: Arc<Intake>,
+    pub recorder: Option<record::Recorder>,
+    next_conn: std::sync::atomic::AtomicU64,
+    pub shutdown: watch::Receiver<bool>,
+}
+
+impl Shared {
+    /// Nanoseconds on the daemon's monotonic clock.
+    pub fn ns(&self, t: Instant) -> u64 {
+        t.saturating_duration_since(self.epoch).as_nanos() as u64
+    }
+
+    pub fn runtime(&self) -> RuntimeConfig {
+        self.runtime
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Applies a run-time change (validated as a whole before anything changes).
+    pub fn apply(&self, patch: RuntimePatch) -> Result<RuntimeConfig, String> {
+        let settings = match &patch.preset {
+            Some(p) => Some(
+                crate::render::Settings::preset(p)
+                    .ok_or_else(|| format!("preset {p:?}: allowed are default, high_accuracy"))?,
+            ),
+            None => None,
+        };
+        let mut r = self.runtime.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(m) = patch.mode {
+            r.mode = m;
+        }
+        if let Some(h) = patch.hold {
+            r.hold = h;
+        }
+        if let (Some(p), Some(mut s)) = (patch.preset, settings) {
+            s.threads = self.scene.settings.threads;
+            r.preset = p;
+            self.intake.control(frames::Control::Settings(s));
+        }
+        tracing::info!(runtime = ?*r, "run-time settings changed");
+        Ok(r.clone())
+    }
+
+    pub fn subscribe(&self, out: &Outbound, on: bool) {
+        let mut s = self.subscribers.lock().unwrap_or_else(|e| e.into_inner());
+        s.retain(|o| o.conn != out.conn);
+        if on {
+            s.push(out.clone());
+        }
+    }
+
+    fn subscribers(&self) -> Vec<Outbound> {
+        let mut s = self.subscribers.lock().unwrap_or_else(|e| e.into_inner());
+        s.retain(|o| !o.tx.is_closed());
+        s.clone()
+    }
+
+    /// A new connection's outbound queue (`capacity` messages) and its receiving end.
+    pub fn outbound(&self, capacity: usize) -> (Outbound, mpsc::Receiver<Message>) {
+        let (tx, rx) = mpsc::channel(capacity);
+        let conn = self
+            .next_conn
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        (
+            Outbound {
+                conn,
+                tx,
+                undelivered: self.stats.undelivered.clone(),
+            },
+            rx,
+        )
+    }
+}
+
+/// A running daemon.
+pub struct Server {
+    pub tcp_addr: SocketAddr,
+    pub http_addr: SocketAddr,
+    pub presenter: String,
+    pub shared: Arc<Shared>,
+    stop: watch::Sender<bool>,
+    runtime: Option<tokio::runtime::Runtime>,
+    frame_thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// What happened at shutdown.
+#[derive(Debug, Serialize)]
+pub struct ShutdownReport {
+    /// Poses that were waiting and were answered `shutting_down` instead of rendered.
+    pub poses_not_rendered: usize,
+    pub frames_presented: u64,
+    pub recording_flushed: bool,
+}
+
+impl Server {
+    /// Binds the listeners, starts the frame thread and the runtime, and returns once the
+    /// daemon serves.
+    pub fn start(options: ServeOptions) -> Result<Server, ServerError> {
+        if options.config.stimulator.is_none() {
+            return Err(ServerError::NoStimulator);
+        }
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("optistim-io")
+            .enable_all()
+            .build()
+            .map_err(|e| ServerError::Runtime(e.to_string()))?;
+        let tcp = runtime
+            .block_on(tokio::net::TcpListener::bind(options.listen))
+            .map_err(|source| ServerError::Bind {
+                what: "pose listener",
+                addr: options.listen,
+                source,
+            })?;
+        let http_listener = runtime
+            .block_on(tokio::net::TcpListener::bind(options.http))
+            .map_err(|source| ServerError::Bind {
+                what: "HTTP listener",
+                addr: options.http,
+                source,
+            })?;
+        let tcp_addr = tcp
+            .local_addr()
+            .map_err(|e| ServerError::Runtime(e.to_string()))?;
+        let http_addr = http_listener
+            .local_addr()
+            .map_err(|e| ServerError::Runtime(e.to_string()))?;
+        let recorder = match &options.record {
+            Some(p) => Some(
+                record::Recorder::create(p).map_err(|source| ServerError::Record {
+                    path: p.display().to_string(),
+                    source,
+                })?,
+            ),
+            None => None,
+        };
+
+        let maker = FrameMaker::new(&options.config)?;
+        let curve = maker.stimulator().expect("checked").curve().clone();
+        let camera = maker.camera().cloned();
+        let intake = Arc::new(Intake::default());
+        let (stop, stop_rx) = watch::channel(false);
+        // The scene's own preset when it equals one by name; "custom" otherwise.
+        let preset = ["default", "high_accuracy"]
+            .into_iter()
+            .find(|p| {
+                crate::render::Settings::preset(p).is_some_and(|mut s| {
+                    s.threads = options.config.settings.threads;
+                    s.depth = options.config.settings.depth;
+                    s == options.config.settings
+                })
+            })
+            .unwrap_or("custom")
+            .to_string();
+        let (present, presenter) = frames::open_presenter(&maker, &options.presenter);
+        let shared = Arc::new(Shared {
+            epoch: Instant::now(),
+            stats: Stats::new(),
+            runtime: Mutex::new(RuntimeConfig {
+                mode: options.mode,
+                hold: false,
+                preset,
+            }),
+            latest: Mutex::new(None),
+            calibration: Mutex::new((curve.id.clone(), curve.sha256.clone())),
+            config_label: options.config_label.clone(),
+            config_sha256: options.config_sha256.clone(),
+            presenter: presenter.clone(),
+            scene: options.config.clone(),
+            camera,
+            subscribers: Mutex::new(Vec::new()),
+            intake: intake.clone(),
+            recorder,
+            next_conn: std::sync::atomic::AtomicU64::new(1),
+            shutdown: stop_rx.clone(),
+        });
+        let frame_thread = FrameThread::new(maker, present, shared.clone());
+        let intake_ft = intake.clone();
+        let frame_thread = std::thread::Builder::new()
+            .name("optistim-frames".into())
+            .spawn(move || frame_thread.run(intake_ft))
+            .map_err(|e| ServerError::Runtime(e.to_string()))?;
+
+        runtime.spawn(connection::accept(tcp, shared.clone()));
+        runtime.spawn(http::serve(http_listener, shared.clone()));
+        if let Some((path, baud)) = &options.serial {
+            serial::spawn(path, *baud, shared.clone(), runtime.handle().clone()).map_err(
+                |message| ServerError::Serial {
+                    path: path.clone(),
+                    message,
+                },
+            )?;
+        }
+        tracing::info!(
+            pose = %tcp_addr,
+            http = %http_addr,
+            serial = ?options.serial.as_ref().map(|s| &s.0),
+            presenter = %presenter,
+            mode = ?options.mode,
+            config = %options.config_label,
+            "optistim serving"
+        );
+        Ok(Server {
+            tcp_addr,
+            http_addr,
+            presenter,
+            shared,
+            stop,
+            runtime: Some(runtime),
+            frame_thread: Some(frame_thread),
+        })
+    }
+
+    /// Stops: no new poses, the frame in flight is finished, waiting poses are answered
+    /// `shutting_down`, connections close, the recording is flushed.
+    pub fn shutdown(mut self) -> ShutdownReport {
+        self.stop_now()
+    }
+
+    fn stop_now(&mut self) -> ShutdownReport {
+        let _ = self.stop.send(true);
+        let waiting = self.shared.intake.stop();
+        let n = waiting.len();
+        for job in waiting {
+            job.reply.send(Message::from(protocol::ProtocolError {
+                code: protocol::ErrorCode::ShuttingDown,
+                message: "the daemon is shutting down; this pose was not rendered".into(),
+                frame_id: Some(job.pose.frame_id),
+            }));
+        }
+        if let Some(t) = self.frame_thread.take() {
+            let _ = t.join();
+        }
+        // Let the connections write their last messages, then close them.
+        if let Some(rt) = self.runtime.take() {
+            rt.block_on(async { tokio::time::sleep(std::time::Duration::from_millis(100)).await });
+            rt.shutdown_timeout(std::time::Duration::from_secs(2));
+        }
+        let flushed = self
+            .shared
+            .recorder
+            .as_ref()
+            .is_none_or(|r| r.flush().is_ok());
+        let report = ShutdownReport {
+            poses_not_rendered: n,
+            frames_presented: self.shared.stats.frames_presented.get(),
+            recording_flushed: flushed,
+        };
+        tracing::info!(?report, "optistim stopped");
+        report
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if self.runtime.is_some() {
+            self.stop_now();
+        }
+    }
+}

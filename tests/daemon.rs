@@ -1,0 +1,182 @@
+//! The daemon's closed loop (issue 5, item 7): the embedded default scene (the NRHO camera's
+//! Moon on a 1920 x 1200 screen), presented off-screen on the GPU adapter (lavapipe in CI)
+//! with the simulated camera, and the replay client streaming 200 poses of the NRHO
+//! trajectory at 10 Hz over TCP and over a pty serial line. In lockstep every frame is acked
+//! in order; free-running at 100 Hz drops are counted and no frame is presented twice.
+//! Needs `../shared/trajectories/` beside the checkout.
+
+mod common;
+use common::*;
+use optistim::app::replay;
+use optistim::server::frames::{Mode, PresenterChoice};
+use optistim::server::protocol::{AckStatus, Message};
+use std::path::Path;
+use std::time::Duration;
+
+const NRHO: &str = "../shared/trajectories/nrho_2orbits.csv";
+
+fn poses(n: usize) -> Vec<optistim::server::protocol::PoseMsg> {
+    let mut p = replay::read_poses(Path::new(NRHO)).unwrap_or_else(|e| panic!("{e}"));
+    p.truncate(n);
+    assert_eq!(p.len(), n);
+    p
+}
+
+fn tcp_halves(
+    addr: std::net::SocketAddr,
+) -> (
+    Box<dyn std::io::Read + Send>,
+    Box<dyn std::io::Write + Send>,
+) {
+    let s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_nodelay(true).unwrap();
+    (Box::new(s.try_clone().unwrap()), Box::new(s))
+}
+
+#[test]
+fn closed_loop_over_tcp_lockstep_then_free_running() {
+    let record = std::env::temp_dir().join(format!("optistim-rec-{}.jsonl", std::process::id()));
+    let daemon = start_daemon(
+        optistim::server::DEFAULT_CONFIG,
+        PresenterChoice::Offscreen,
+        Mode::Lockstep,
+        None,
+        Some(record.clone()),
+    );
+    eprintln!("presenter: {}", daemon.presenter);
+    let poses = poses(200);
+
+    // A subscriber, reading as frames come, receives the simulated camera's image of every
+    // frame.
+    let mut sub = Client::connect(daemon.tcp_addr);
+    sub.send(&Message::Subscribe { camera: true });
+    std::thread::sleep(Duration::from_millis(200));
+    let subscriber = std::thread::spawn(move || {
+        let mut camera_frames = 0;
+        while let Some(m) = sub.recv(Duration::from_secs(3)) {
+            if let Message::CameraFrame {
+                width, height, dn, ..
+            } = m
+            {
+                assert_eq!((width, height, dn.len()), (1024, 1024, 1024 * 1024));
+                assert!(dn.iter().any(|&x| x > 100), "the camera sees the Moon");
+                camera_frames += 1;
+            }
+        }
+        camera_frames
+    });
+
+    let (r, w) = tcp_halves(daemon.tcp_addr);
+    let lock = replay::stream(r, w, &poses, 10.0, Mode::Lockstep, "tcp").unwrap();
+    eprintln!(
+        "lockstep over TCP: {}",
+        serde_json::to_string(&lock).unwrap()
+    );
+    assert_eq!(lock.sent, 200);
+    assert_eq!(lock.acked, 200, "{:?}", lock.error_messages);
+    assert!(lock.in_order);
+    assert_eq!(
+        (lock.dropped, lock.errors, lock.lost, lock.presented_twice),
+        (0, 0, 0, 0)
+    );
+
+    let camera_frames = subscriber.join().unwrap();
+    assert_eq!(camera_frames, 200);
+
+    let (r, w) = tcp_halves(daemon.tcp_addr);
+    let free = replay::stream(r, w, &poses, 100.0, Mode::Free, "tcp").unwrap();
+    eprintln!(
+        "free-running over TCP: {}",
+        serde_json::to_string(&free).unwrap()
+    );
+    assert_eq!(free.sent, 200);
+    assert_eq!(free.acked + free.dropped, 200);
+    assert!(free.dropped > 0, "at 100 Hz some poses must be stale");
+    assert_eq!((free.errors, free.lost, free.presented_twice), (0, 0, 0));
+    assert!(free.in_order);
+
+    // Every acknowledged frame is in the recording.
+    let report = daemon.shutdown();
+    assert!(report.recording_flushed);
+    let text = std::fs::read_to_string(&record).unwrap();
+    let recorded = text
+        .lines()
+        .filter(|l| l.contains("\"type\":\"pose\""))
+        .count();
+    assert_eq!(recorded, 400);
+    let _ = std::fs::remove_file(&record);
+}
+
+#[test]
+fn closed_loop_over_a_pty_serial_line() {
+    use serialport::SerialPort;
+    let (master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+    let path = slave.name().expect("the pty's path");
+    let daemon = start_daemon(
+        optistim::server::DEFAULT_CONFIG,
+        PresenterChoice::Offscreen,
+        Mode::Lockstep,
+        Some(path.clone()),
+        None,
+    );
+    let reader = master.try_clone_native().unwrap();
+    let lock = replay::stream(
+        Box::new(reader),
+        Box::new(master),
+        &poses(200),
+        10.0,
+        Mode::Lockstep,
+        &path,
+    )
+    .unwrap();
+    eprintln!(
+        "lockstep over {path}: {}",
+        serde_json::to_string(&lock).unwrap()
+    );
+    assert_eq!(lock.acked, 200, "{:?}", lock.error_messages);
+    assert!(lock.in_order);
+    assert_eq!(
+        (lock.dropped, lock.errors, lock.lost, lock.presented_twice),
+        (0, 0, 0, 0)
+    );
+    drop(slave);
+    drop(daemon);
+}
+
+#[test]
+fn hold_and_trigger_present_on_demand() {
+    let daemon = start_daemon(
+        &small_daemon_config(),
+        PresenterChoice::Cpu,
+        Mode::Lockstep,
+        None,
+        None,
+    );
+    let mut c = Client::connect(daemon.tcp_addr);
+    c.send(&Message::Config {
+        json: r#"{"hold": true}"#.into(),
+    });
+    assert!(matches!(
+        c.recv(Duration::from_secs(5)),
+        Some(Message::ConfigAck { .. })
+    ));
+    c.send(&Message::Pose(nrho_pose(1)));
+    match c.recv(Duration::from_secs(30)) {
+        Some(Message::Ack(a)) => assert_eq!((a.frame_id, a.status), (1, AckStatus::Held)),
+        other => panic!("{other:?}"),
+    }
+    // Nothing is presented until the trigger.
+    let (code, _) = http(daemon.http_addr, "GET", "/frame/latest.png", b"");
+    assert_eq!(code, 404);
+    c.send(&Message::Trigger);
+    match c.recv(Duration::from_secs(30)) {
+        Some(Message::Ack(a)) => {
+            assert_eq!((a.frame_id, a.status), (1, AckStatus::Presented));
+            assert!(a.presented_ns >= a.render_end_ns && a.render_end_ns >= a.render_start_ns);
+        }
+        other => panic!("{other:?}"),
+    }
+    let (code, png) = http(daemon.http_addr, "GET", "/frame/latest.png", b"");
+    assert_eq!(code, 200);
+    assert_eq!(&png[1..4], b"PNG");
+}

@@ -46,6 +46,11 @@ pub struct ReplayReport {
     pub latency_ms: Latency,
     /// Daemon side: pose received -> presented [ms], from the acks' time stamps.
     pub daemon_latency_ms: Latency,
+    /// Daemon side, what the latency adds to the frame's render time (queueing, presenting)
+    /// [ms]: `presented - received - render_ms`.
+    pub overhead_ms: Latency,
+    /// The render time the acks report [ms].
+    pub render_ms: Latency,
     pub elapsed_s: f64,
     /// The first few error messages.
     pub error_messages: Vec<String>,
@@ -206,6 +211,8 @@ pub fn stream(
     r.elapsed_s = t0.elapsed().as_secs_f64();
     r.latency_ms = percentiles(t.lat);
     r.daemon_latency_ms = percentiles(t.dlat);
+    r.overhead_ms = percentiles(t.overhead);
+    r.render_ms = percentiles(t.render);
     Ok(r)
 }
 
@@ -218,6 +225,8 @@ struct Tally {
     answered: HashMap<u64, bool>,
     lat: Vec<f64>,
     dlat: Vec<f64>,
+    overhead: Vec<f64>,
+    render: Vec<f64>,
     last_presented: Option<u64>,
 }
 
@@ -241,8 +250,10 @@ impl Tally {
                         if let Some(s) = self.sent_at.get(&a.frame_id) {
                             self.lat.push((at - *s).as_secs_f64() * 1e3);
                         }
-                        self.dlat
-                            .push(a.presented_ns.saturating_sub(a.received_ns) as f64 * 1e-6);
+                        let d = a.presented_ns.saturating_sub(a.received_ns) as f64 * 1e-6;
+                        self.dlat.push(d);
+                        self.overhead.push(d - a.render_ms);
+                        self.render.push(a.render_ms);
                     }
                     AckStatus::Dropped => {
                         self.answered.entry(a.frame_id).or_insert(false);

@@ -210,6 +210,14 @@ impl Client {
         }
     }
 
+    /// A client on an existing stream (e.g. the reading half of another client).
+    pub fn from_stream(stream: std::net::TcpStream) -> Client {
+        Client {
+            stream,
+            decoder: optistim::server::protocol::Decoder::new(u32::MAX),
+        }
+    }
+
     pub fn send_raw(&mut self, bytes: &[u8]) {
         use std::io::Write;
         self.stream.write_all(bytes).unwrap();

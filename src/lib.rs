@@ -21,7 +21,8 @@
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs |
-//! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate` |
+//! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
+//! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate`, `replay` |
 //!
 //! # Data flow of one frame
 //!
@@ -40,6 +41,10 @@
 //!               → screen DN ─► simulated camera: true response → collimator → detector → DN
 //!   display::Presenter: screen-region F_eff → LUT pass (same inverse, on the GPU) → screen DN
 //!               (off-screen with read-back | fullscreen window | preview window)
+//!
+//! server (optistim serve): TCP | serial ─► protocol::Decoder ─► connection ─► frames::Intake
+//!   ─► frame thread: pipeline::FrameMaker → Presenter → ack (+ camera frame to subscribers)
+//!   http (axum): status, metrics, latest images, calibration replay, run-time settings
 //! ```
 //!
 //! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the

@@ -180,3 +180,49 @@ fn hold_and_trigger_present_on_demand() {
     assert_eq!(code, 200);
     assert_eq!(&png[1..4], b"PNG");
 }
+
+#[test]
+fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
+    use std::io::{BufRead, BufReader};
+    let dir = std::env::temp_dir().join(format!("optistim-sigterm-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("daemon.toml");
+    std::fs::write(&scene, small_daemon_config()).unwrap();
+    let record = dir.join("rec.jsonl");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
+        .args(["serve", "--config", scene.to_str().unwrap()])
+        .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--present", "cpu"])
+        .args(["--record", record.to_str().unwrap()])
+        .env_remove("DISPLAY")
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let first: serde_json::Value =
+        serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    let addr: std::net::SocketAddr = first["listening"].as_str().unwrap().parse().unwrap();
+    let mut c = Client::connect(addr);
+    for i in 0..5 {
+        c.send(&Message::Pose(nrho_pose(i)));
+        loop {
+            if let Some(Message::Ack(a)) = c.recv(Duration::from_secs(30)) {
+                assert_eq!(a.frame_id, i);
+                break;
+            }
+        }
+    }
+    let status = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let exit = child.wait().unwrap();
+    assert!(exit.success(), "{exit:?}");
+    let report: serde_json::Value =
+        serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    assert_eq!(report["frames_presented"].as_u64(), Some(5));
+    assert_eq!(report["recording_flushed"].as_bool(), Some(true));
+    let text = std::fs::read_to_string(&record).unwrap();
+    assert_eq!(text.lines().filter(|l| l.contains("\"pose\"")).count(), 5);
+    let _ = std::fs::remove_dir_all(&dir);
+}

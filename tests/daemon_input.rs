@@ -415,3 +415,43 @@ fn http_reports_and_steers_the_daemon() {
         (Some("free"), Some("high_accuracy"))
     );
 }
+
+/// The dashboard renders and updates in a real browser (Debian's `chromium`, headless; `.ci/run`
+/// installs it): its polling loop ran more than once, it shows the latest frame's image and
+/// the status table.
+#[test]
+fn the_dashboard_renders_and_updates_in_headless_chromium() {
+    let chromium = ["chromium", "chromium-browser"]
+        .into_iter()
+        .find(|c| {
+            std::process::Command::new(c)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+        .expect("chromium not found: apt-get install chromium (.ci/run does)");
+    let d = daemon(Mode::Lockstep);
+    let mut c = Client::connect(d.tcp_addr);
+    for i in 0..3 {
+        still_serves(&mut c, i);
+    }
+    let profile = std::env::temp_dir().join(format!("optistim-chromium-{}", std::process::id()));
+    let out = std::process::Command::new(chromium)
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run"])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(["--virtual-time-budget=3000", "--dump-dom"])
+        .arg(format!("http://{}/", d.http_addr))
+        .output()
+        .expect("run chromium");
+    let _ = std::fs::remove_dir_all(&profile);
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let updates: u32 = dom
+        .split("data-updates=\"")
+        .nth(1)
+        .and_then(|s| s.split('"').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("the page never updated: {dom}"));
+    assert!(updates >= 2, "{updates} updates");
+    assert!(dom.contains("src=\"/frame/latest.png?f=2\""), "{dom}");
+    assert!(dom.contains("<td>frames presented</td><td>3</td>"), "{dom}");
+}

@@ -289,11 +289,7 @@ fn serve(
         ),
     };
     let cfg = config::parse(&text, &label)?;
-    let sha = {
-        use sha2::Digest;
-        let d = sha2::Sha256::digest(text.as_bytes());
-        d.iter().map(|b| format!("{b:02x}")).collect::<String>()
-    };
+    let sha = server::sha256_hex(text.as_bytes());
     let presenter = match present {
         "auto" => PresenterChoice::Auto,
         "offscreen" => PresenterChoice::Offscreen,

@@ -191,15 +191,21 @@ fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
     let record = dir.join("rec.jsonl");
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
         .args(["serve", "--config", scene.to_str().unwrap()])
-        .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--present", "cpu"])
+        .args([
+            "--listen",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+            "--present",
+            "cpu",
+        ])
         .args(["--record", record.to_str().unwrap()])
         .env_remove("DISPLAY")
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
     let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let first: serde_json::Value =
-        serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
     let addr: std::net::SocketAddr = first["listening"].as_str().unwrap().parse().unwrap();
     let mut c = Client::connect(addr);
     for i in 0..5 {
@@ -218,8 +224,7 @@ fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
     assert!(status.success());
     let exit = child.wait().unwrap();
     assert!(exit.success(), "{exit:?}");
-    let report: serde_json::Value =
-        serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    let report: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
     assert_eq!(report["frames_presented"].as_u64(), Some(5));
     assert_eq!(report["recording_flushed"].as_bool(), Some(true));
     let text = std::fs::read_to_string(&record).unwrap();

@@ -437,7 +437,12 @@ fn the_dashboard_renders_and_updates_in_headless_chromium() {
     }
     let profile = std::env::temp_dir().join(format!("optistim-chromium-{}", std::process::id()));
     let out = std::process::Command::new(chromium)
-        .args(["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run"])
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+        ])
         .arg(format!("--user-data-dir={}", profile.display()))
         .args(["--virtual-time-budget=3000", "--dump-dom"])
         .arg(format!("http://{}/", d.http_addr))

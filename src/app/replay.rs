@@ -116,7 +116,7 @@ pub fn stream(
                 Err(_) => break,
             }
             loop {
-                match d.next() {
+                match d.next_message() {
                     Decoded::Message(m) => {
                         if tx.send((m, Instant::now())).is_err() {
                             return;

@@ -131,7 +131,7 @@ where
             _ => {
                 decoder.push(bytes);
                 loop {
-                    match decoder.next() {
+                    match decoder.next_message() {
                         Decoded::Message(m) => conn.message(m),
                         Decoded::Error(e) => conn.error(e),
                         Decoded::NeedMore => break,
@@ -249,15 +249,18 @@ impl Conn {
                             }));
                         }
                     }
-                    Err((_, e)) => self.error(e),
+                    Err(e) => self.error(e),
                 }
             }
             Message::Config { json } => {
                 let patch: Result<RuntimePatch, _> = serde_json::from_str(&json);
-                match patch
-                    .map_err(|e| e.to_string())
-                    .and_then(|p| self.shared.apply(p))
-                {
+                // A new scene is loaded and built here: off the worker's async duties.
+                let applied = tokio::task::block_in_place(|| {
+                    patch
+                        .map_err(|e| e.to_string())
+                        .and_then(|p| self.shared.apply(p))
+                });
+                match applied {
                     Ok(r) => self.out.send(Message::ConfigAck {
                         json: serde_json::to_string(&r).unwrap_or_default(),
                     }),

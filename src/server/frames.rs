@@ -48,6 +48,8 @@ pub enum Control {
     /// Replay another calibration curve; the answer says whether it was taken.
     Replay(Arc<Curve>, std_mpsc::Sender<Result<(), String>>),
     Settings(crate::render::Settings),
+    /// Switch to another scene (same screen), from the next pose on.
+    Scene(Box<FrameMaker>),
     /// Present the held frame; errors go to `reply`.
     Trigger(Outbound),
 }
@@ -69,33 +71,25 @@ pub struct Intake {
 impl Intake {
     /// Queues a pose. In free-running mode the poses still waiting are replaced (returned,
     /// to be acked as dropped); in lockstep a full queue refuses the pose.
-    pub fn push(&self, job: Job, mode: Mode) -> Result<Vec<Job>, (Job, ProtocolError)> {
+    pub fn push(&self, job: Job, mode: Mode) -> Result<Vec<Job>, ProtocolError> {
         let mut s = self.state.lock().unwrap_or_else(|e| e.into_inner());
         if s.stop {
             let frame_id = job.pose.frame_id;
-            return Err((
-                job,
-                ProtocolError {
-                    code: ErrorCode::ShuttingDown,
-                    message: "the daemon is shutting down".into(),
-                    frame_id: Some(frame_id),
-                },
-            ));
+            return Err(ProtocolError {
+                code: ErrorCode::ShuttingDown,
+                message: "the daemon is shutting down".into(),
+                frame_id: Some(frame_id),
+            });
         }
         let dropped = match mode {
             Mode::Free => s.poses.drain(..).collect(),
             Mode::Lockstep if s.poses.len() >= LOCKSTEP_QUEUE => {
                 let frame_id = job.pose.frame_id;
-                return Err((
-                    job,
-                    ProtocolError {
-                        code: ErrorCode::Busy,
-                        message: format!(
-                            "{LOCKSTEP_QUEUE} poses already wait: wait for their acks"
-                        ),
-                        frame_id: Some(frame_id),
-                    },
-                ));
+                return Err(ProtocolError {
+                    code: ErrorCode::Busy,
+                    message: format!("{LOCKSTEP_QUEUE} poses already wait: wait for their acks"),
+                    frame_id: Some(frame_id),
+                });
             }
             Mode::Lockstep => Vec::new(),
         };
@@ -230,6 +224,7 @@ impl FrameThread {
                     let _ = answer.send(self.replay(curve));
                 }
                 Err(Control::Settings(s)) => self.maker.set_settings(s),
+                Err(Control::Scene(maker)) => self.switch_scene(*maker),
                 Err(Control::Trigger(reply)) => self.trigger(reply),
             }
         }
@@ -242,6 +237,25 @@ impl FrameThread {
         if let Present::Window { tx, .. } = &self.present {
             let _ = tx.send(DisplayEvent::Quit);
         }
+    }
+
+    /// The new scene's pipeline and its curve; a held frame of the old scene is dropped.
+    fn switch_scene(&mut self, maker: FrameMaker) {
+        let curve = maker
+            .stimulator()
+            .expect("checked by Shared::apply")
+            .curve()
+            .clone();
+        self.maker = maker;
+        if let Some(h) = self.held.take() {
+            self.shared.stats.poses_dropped.inc();
+            let ack = self.ack(&h, AckStatus::Dropped, None);
+            h.job.reply.send(Message::Ack(ack));
+        }
+        if let Err(e) = self.replay(curve) {
+            tracing::error!("the new scene's calibration could not be uploaded: {e}");
+        }
+        tracing::info!(scene = %self.shared.scene().label, "scene switched");
     }
 
     fn replay(&mut self, curve: Arc<Curve>) -> Result<(), String> {

@@ -44,6 +44,7 @@ pub async fn serve(listener: TcpListener, shared: Arc<Shared>) {
 
 async fn status(State(s): State<Arc<Shared>>) -> Response {
     let (fps, [p50, p99, max], recent) = s.stats.summary();
+    let scene = s.scene();
     let (id, sha) = s
         .calibration
         .lock()
@@ -67,7 +68,7 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         "undelivered_messages": s.stats.undelivered.get(),
         "clients": s.stats.clients.get(),
         "calibration": {"id": id, "sha256": sha},
-        "config": {"source": s.config_label, "sha256": s.config_sha256},
+        "config": {"source": scene.label, "sha256": scene.sha256},
         "runtime": s.runtime(),
         "presenter": s.presenter,
         "latest_frame_id": latest,
@@ -119,7 +120,7 @@ async fn camera_png(State(s): State<Arc<Shared>>) -> Response {
     let Some(latest) = s.latest.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
         return no_frame();
     };
-    let Some(camera) = s.camera.clone() else {
+    let Some(camera) = s.scene().camera else {
         return (StatusCode::NOT_FOUND, "no simulated camera\n").into_response();
     };
     let r = tokio::task::spawn_blocking(move || {
@@ -147,16 +148,13 @@ async fn get_calibration(State(s): State<Arc<Shared>>) -> Response {
 /// validate is refused with the reason, and the active one stays.
 async fn put_calibration(State(s): State<Arc<Shared>>, body: Bytes) -> Response {
     let interp = s
-        .scene
+        .scene()
+        .config
         .stimulator
         .as_ref()
         .map(|st| st.interp)
         .unwrap_or_default();
-    let sha = {
-        use sha2::Digest;
-        let d = sha2::Sha256::digest(&body);
-        d.iter().map(|b| format!("{b:02x}")).collect::<String>()
-    };
+    let sha = super::sha256_hex(&body);
     let id = format!("uploaded-{}", &sha[..12]);
     let curve = match Curve::parse(&body, &id, "PUT /calibration", interp) {
         Ok(c) => Arc::new(c),
@@ -196,7 +194,13 @@ async fn get_config(State(s): State<Arc<Shared>>) -> Response {
 
 async fn put_config(State(s): State<Arc<Shared>>, body: Bytes) -> Response {
     let patch: Result<super::RuntimePatch, _> = serde_json::from_slice(&body);
-    match patch.map_err(|e| e.to_string()).and_then(|p| s.apply(p)) {
+    // A new scene is loaded and built on the blocking pool.
+    let applied = tokio::task::spawn_blocking(move || {
+        patch.map_err(|e| e.to_string()).and_then(|p| s.apply(p))
+    })
+    .await
+    .unwrap_or_else(|e| Err(e.to_string()));
+    match applied {
         Ok(r) => axum::Json(r).into_response(),
         Err(e) => (
             StatusCode::UNPROCESSABLE_ENTITY,

@@ -82,8 +82,12 @@ pub struct RuntimeConfig {
     pub mode: Mode,
     /// Render into the hold buffer; present on a trigger.
     pub hold: bool,
-    /// The renderer's settings preset (`default` | `high_accuracy`).
+    /// The renderer's settings preset (`default` | `high_accuracy`, or `custom` for a scene's
+    /// own `[render]` knobs).
     pub preset: String,
+    /// The scene in force: a scene TOML path on the daemon's machine (or the embedded
+    /// default's label). A new scene must drive the same screen (size and DN depth).
+    pub scene: String,
 }
 
 /// A change to [`RuntimeConfig`]: only the keys given change.
@@ -93,6 +97,7 @@ pub struct RuntimePatch {
     pub mode: Option<Mode>,
     pub hold: Option<bool>,
     pub preset: Option<String>,
+    pub scene: Option<String>,
 }
 
 /// The latest presented screen.
@@ -233,6 +238,15 @@ impl Stats {
     }
 }
 
+/// The scene in force: its validated config, where it came from, and its simulated camera.
+#[derive(Clone)]
+pub struct SceneState {
+    pub config: Config,
+    pub label: String,
+    pub sha256: String,
+    pub camera: Option<Arc<SimulatedCamera>>,
+}
+
 /// What the connections, HTTP and the frame thread share.
 pub struct Shared {
     epoch: Instant,
@@ -241,11 +255,8 @@ pub struct Shared {
     pub latest: Mutex<Option<Arc<ScreenImage>>>,
     /// The active curve's id and SHA-256.
     pub calibration: Mutex<(String, String)>,
-    pub config_label: String,
-    pub config_sha256: String,
     pub presenter: String,
-    pub scene: Config,
-    pub camera: Option<Arc<SimulatedCamera>>,
+    scene: Mutex<SceneState>,
     subscribers: Mutex<Vec<Outbound>>,
     pub intake: Arc<Intake>,
     pub recorder: Option<record::Recorder>,
@@ -266,13 +277,25 @@ impl Shared {
             .clone()
     }
 
-    /// Applies a run-time change (validated as a whole before anything changes).
+    /// The scene in force.
+    pub fn scene(&self) -> SceneState {
+        self.scene.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Applies a run-time change, validated as a whole before anything changes. A new scene
+    /// is loaded and its pipeline built here (blocking: call it off the runtime's workers),
+    /// then handed to the frame thread, which switches before the next pose.
     pub fn apply(&self, patch: RuntimePatch) -> Result<RuntimeConfig, String> {
+        let current = self.scene();
         let settings = match &patch.preset {
             Some(p) => Some(
                 crate::render::Settings::preset(p)
                     .ok_or_else(|| format!("preset {p:?}: allowed are default, high_accuracy"))?,
             ),
+            None => None,
+        };
+        let scene = match &patch.scene {
+            Some(path) => Some(self.load_scene(path, &current)?),
             None => None,
         };
         let mut r = self.runtime.lock().unwrap_or_else(|e| e.into_inner());
@@ -282,13 +305,46 @@ impl Shared {
         if let Some(h) = patch.hold {
             r.hold = h;
         }
+        if let Some((state, maker)) = scene {
+            r.scene = state.label.clone();
+            r.preset = "custom".into();
+            *self.scene.lock().unwrap_or_else(|e| e.into_inner()) = state;
+            self.intake.control(frames::Control::Scene(Box::new(maker)));
+        }
         if let (Some(p), Some(mut s)) = (patch.preset, settings) {
-            s.threads = self.scene.settings.threads;
+            s.threads = current.config.settings.threads;
             r.preset = p;
             self.intake.control(frames::Control::Settings(s));
         }
         tracing::info!(runtime = ?*r, "run-time settings changed");
         Ok(r.clone())
+    }
+
+    /// Loads and checks a scene for the screen in use, and builds its pipeline.
+    fn load_scene(
+        &self,
+        path: &str,
+        current: &SceneState,
+    ) -> Result<(SceneState, FrameMaker), String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("scene {path}: {e}"))?;
+        let config = crate::config::parse(&text, path).map_err(|e| e.to_string())?;
+        let (Some(new), Some(old)) = (&config.stimulator, &current.config.stimulator) else {
+            return Err(format!("scene {path}: no [stimulator] section"));
+        };
+        if (new.screen_px, new.screen_bits) != (old.screen_px, old.screen_bits) {
+            return Err(format!(
+                "scene {path}: a {:?} px {}-bit screen; the daemon drives a {:?} px {}-bit                  one (a different screen needs a restart)",
+                new.screen_px, new.screen_bits, old.screen_px, old.screen_bits
+            ));
+        }
+        let maker = FrameMaker::new(&config).map_err(|e| format!("scene {path}: {e}"))?;
+        let state = SceneState {
+            label: path.to_string(),
+            sha256: sha256_hex(text.as_bytes()),
+            camera: maker.camera().cloned(),
+            config,
+        };
+        Ok((state, maker))
     }
 
     pub fn subscribe(&self, out: &Outbound, on: bool) {
@@ -410,14 +466,17 @@ impl Server {
                 mode: options.mode,
                 hold: false,
                 preset,
+                scene: options.config_label.clone(),
             }),
             latest: Mutex::new(None),
             calibration: Mutex::new((curve.id.clone(), curve.sha256.clone())),
-            config_label: options.config_label.clone(),
-            config_sha256: options.config_sha256.clone(),
             presenter: presenter.clone(),
-            scene: options.config.clone(),
-            camera,
+            scene: Mutex::new(SceneState {
+                config: options.config.clone(),
+                label: options.config_label.clone(),
+                sha256: options.config_sha256.clone(),
+                camera,
+            }),
             subscribers: Mutex::new(Vec::new()),
             intake: intake.clone(),
             recorder,
@@ -507,4 +566,13 @@ impl Drop for Server {
             self.stop_now();
         }
     }
+}
+
+/// The SHA-256 of `bytes`, in hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }

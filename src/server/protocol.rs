@@ -523,7 +523,7 @@ pub struct Decoder {
     max_payload: u32,
 }
 
-/// What [`Decoder::next`] found.
+/// What [`Decoder::next_message`] found.
 #[derive(Debug, PartialEq)]
 pub enum Decoded {
     Message(Message),
@@ -551,7 +551,7 @@ impl Decoder {
     }
 
     /// The next message or error in the bytes pushed so far.
-    pub fn next(&mut self) -> Decoded {
+    pub fn next_message(&mut self) -> Decoded {
         // Garbage before a sync word is skipped and reported once per run.
         let start = self.buf.windows(2).position(|w| w == SYNC);
         let skip = match start {
@@ -713,14 +713,14 @@ mod tests {
             d.push(&m.encode());
         }
         for m in &msgs {
-            assert_eq!(d.next(), Decoded::Message(m.clone()));
+            assert_eq!(d.next_message(), Decoded::Message(m.clone()));
             let line = encode_json(m);
             assert_eq!(
                 decode_json(std::str::from_utf8(&line).unwrap()).unwrap(),
                 *m
             );
         }
-        assert_eq!(d.next(), Decoded::NeedMore);
+        assert_eq!(d.next_message(), Decoded::NeedMore);
     }
 
     #[test]
@@ -743,7 +743,7 @@ mod tests {
         let mut codes = Vec::new();
         let mut poses = 0;
         loop {
-            match d.next() {
+            match d.next_message() {
                 Decoded::Message(Message::Pose(_)) => poses += 1,
                 Decoded::Message(m) => panic!("{m:?}"),
                 Decoded::Error(e) => codes.push(e.code),
@@ -761,7 +761,7 @@ mod tests {
         }
         assert!(d.finish().is_none());
         d.push(&good[..20]);
-        assert_eq!(d.next(), Decoded::NeedMore);
+        assert_eq!(d.next_message(), Decoded::NeedMore);
         assert_eq!(d.finish().map(|e| e.code), Some(ErrorCode::Truncated));
     }
 }

@@ -236,7 +236,7 @@ impl Client {
         use std::io::Read;
         let deadline = std::time::Instant::now() + timeout;
         loop {
-            match self.decoder.next() {
+            match self.decoder.next_message() {
                 Decoded::Message(m) => return Some(m),
                 Decoded::Error(e) => panic!("the daemon sent a bad frame: {e}"),
                 Decoded::NeedMore => {}

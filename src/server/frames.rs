@@ -347,26 +347,22 @@ impl FrameThread {
         }
         let presented = Instant::now();
         let ack = self.ack(&h, AckStatus::Presented, Some(presented));
-        h.job.reply.send(Message::Ack(ack));
-        let stats = &self.shared.stats;
-        stats.record_frame(
+        // Counted and published before the ack leaves, so that whoever holds the ack sees the
+        // frame in /status and /frame/latest.png.
+        self.shared.stats.record_frame(
             (presented - h.job.received).as_secs_f64() * 1e3,
             (h.render_end - h.render_start).as_secs_f64() * 1e3,
         );
-        let st = h.made.stimulator.take().expect("has a stimulator");
+        let config = self.maker.stimulator().expect("has one").config();
         let latest = Arc::new(super::ScreenImage {
             frame_id,
             exposure_s: h.job.exposure_s,
-            screen_px: self.maker.stimulator().expect("has one").config().screen_px,
-            bits: self
-                .maker
-                .stimulator()
-                .expect("has one")
-                .config()
-                .screen_bits,
-            dn: st.screen_dn,
+            screen_px: config.screen_px,
+            bits: config.screen_bits,
+            dn: h.made.stimulator.take().expect("has one").screen_dn,
         });
         *self.shared.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(latest.clone());
+        h.job.reply.send(Message::Ack(ack));
         self.publish_camera(&latest);
     }
 

@@ -58,6 +58,11 @@ fn the_lut_pass_matches_the_cpu_reference_at_10_bit_dithered() {
 }
 
 #[test]
+fn the_lut_pass_matches_the_cpu_reference_at_10_bit_blue_noise() {
+    check(10, Dither::BlueNoise);
+}
+
+#[test]
 fn the_lut_pass_matches_the_cpu_reference_at_8_bit() {
     check(8, Dither::None);
 }

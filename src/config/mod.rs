@@ -202,9 +202,10 @@ impl Validator<'_> {
         let dither = match self.choice(
             "stimulator.dither",
             s.dither.as_deref().unwrap_or("none"),
-            &["none", "ordered"],
+            &["none", "ordered", "blue_noise"],
         )? {
             "ordered" => Dither::Ordered,
+            "blue_noise" => Dither::BlueNoise,
             _ => Dither::None,
         };
         let screen = s.screen_resolution_px;

@@ -30,6 +30,8 @@ struct Params {
 @group(0) @binding(0) var<storage, read> feff: array<f32>;
 @group(0) @binding(1) var<storage, read> table: array<f32>;
 @group(0) @binding(2) var<uniform> p: Params;
+// The 64 x 64 blue-noise thresholds, (rank + 0.5) / 4096 (stimulator::dither::blue_noise).
+@group(0) @binding(3) var<storage, read> noise: array<f32>;
 
 // The 8 x 8 Bayer index at (x, y), from its bits (interleaved x^y and y, reversed): the
 // same matrix as stimulator::dither, without a dynamically indexed constant array (which
@@ -72,6 +74,8 @@ fn screen_code(pos: vec4<f32>) -> f32 {
         var t = 0.5;
         if p.dither == 1u {
             t = (f32(bayer8(q.x, q.y)) + 0.5) / 64.0;
+        } else if p.dither == 2u {
+            t = noise[(q.y % 64u) * 64u + q.x % 64u];
         }
         c = clamp(floor(code_of(f) + t), p.code_lo, p.code_hi);
     }

@@ -143,7 +143,8 @@ struct Input {
     region_px: [u32; 2],
     buffer: wgpu::Buffer,
     origin_px: [u32; 2],
-    dither: bool,
+    /// 0 none, 1 ordered, 2 blue noise (`lut.wgsl`).
+    dither: u32,
 }
 
 /// One target's view of the inputs: its own parameters (the view scale differs between the
@@ -184,6 +185,8 @@ pub struct Presenter {
     generation: u64,
     offscreen: Option<Offscreen>,
     scratch: Vec<f32>,
+    /// The blue-noise dither's thresholds.
+    noise: wgpu::Buffer,
 }
 
 impl Presenter {
@@ -229,6 +232,7 @@ impl Presenter {
             entries: &[
                 storage_entry(0),
                 storage_entry(1),
+                storage_entry(3),
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility,
@@ -273,7 +277,20 @@ impl Presenter {
             compilation_options: Default::default(),
             cache: None,
         });
+        let cells = crate::stimulator::dither::BLUE_NOISE_SIDE.pow(2) as f32;
+        let thresholds: Vec<f32> = crate::stimulator::dither::blue_noise()
+            .iter()
+            .map(|&r| (r as f32 + 0.5) / cells)
+            .collect();
+        let noise = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("blue noise"),
+            size: (4 * thresholds.len()) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        queue.write_buffer(&noise, 0, bytemuck::cast_slice(&thresholds));
         Ok(Presenter {
+            noise,
             instance,
             out_layout,
             compute,
@@ -355,7 +372,7 @@ impl Presenter {
                 region_px: region,
                 buffer,
                 origin_px: [0, 0],
-                dither: false,
+                dither: 0,
             });
             self.generation += 1;
         }
@@ -369,7 +386,11 @@ impl Presenter {
         }
         let input = self.input.as_mut().expect("made above");
         input.origin_px = [config.origin_px[0] as u32, config.origin_px[1] as u32];
-        input.dither = config.dither == Dither::Ordered;
+        input.dither = match config.dither {
+            Dither::None => 0,
+            Dither::Ordered => 1,
+            Dither::BlueNoise => 2,
+        };
         self.queue
             .write_buffer(&input.buffer, 0, bytemuck::cast_slice(&scratch));
         self.scratch = scratch;
@@ -535,6 +556,10 @@ impl Presenter {
                         binding: 2,
                         resource: params.as_entire_binding(),
                     },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: self.noise.as_entire_binding(),
+                    },
                 ],
             });
             *binding = Some(Binding {
@@ -559,7 +584,7 @@ impl Presenter {
             lut.f_hi.to_bits(),
             lut.entries,
             (1.0 / (lut.f_hi - lut.f_lo)).to_bits(),
-            u32::from(input.dither),
+            input.dither,
             target_px[0],
             target_px[1],
         ];

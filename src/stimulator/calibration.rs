@@ -746,14 +746,14 @@ pub(crate) mod tests {
     /// right to well below half an LSB (the local F_eff step of one level) at 8 and 10 bit;
     /// without dithering the bias reaches almost half an LSB.
     #[test]
-    fn ordered_dither_brings_the_region_mean_below_half_an_lsb() {
+    fn dithering_brings_the_region_mean_below_half_an_lsb() {
         use super::super::dither::Dither;
         let c = curve(EXAMPLE, Interp::Pchip).unwrap();
         let (lo, hi) = c.feff_range(0);
         for levels in [256u32, 1024] {
             let top = (levels - 1) as f64;
             let shown = |code: f64| c.feff_at(0, code / top * c.dn_full_scale);
-            let (mut worst_plain, mut worst_dither) = (0.0f64, 0.0f64);
+            let (mut worst_plain, mut worst_dither, mut worst_blue) = (0.0f64, 0.0f64, 0.0f64);
             for k in 1..200 {
                 let f = lo + (hi - lo) * (k as f64 / 200.0).powf(2.0);
                 let img = vec![f; 64 * 64];
@@ -762,6 +762,7 @@ pub(crate) mod tests {
                 for (d, worst) in [
                     (Dither::None, &mut worst_plain),
                     (Dither::Ordered, &mut worst_dither),
+                    (Dither::BlueNoise, &mut worst_blue),
                 ] {
                     let mut out = Vec::new();
                     c.invert_image(0, &img, 64, levels, d, &mut out);
@@ -772,6 +773,10 @@ pub(crate) mod tests {
             assert!(
                 worst_dither < 0.05,
                 "{levels} levels: dithered mean error {worst_dither} LSB"
+            );
+            assert!(
+                worst_blue < 0.05,
+                "{levels} levels: blue-noise mean error {worst_blue} LSB"
             );
             assert!(
                 worst_plain > 0.3,

@@ -303,17 +303,21 @@ impl<F: FnMut(Presented)> App<F> {
                 wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
                     return Ok(None);
                 }
-                wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost
-                    if !retried =>
-                {
+                wgpu::CurrentSurfaceTexture::Outdated if !retried => {
                     retried = true;
-                    tracing::info!(role = target.role, "surface outdated or lost: recreated");
+                    tracing::info!(role = target.role, "surface outdated: reconfigured");
+                    target
+                        .surface
+                        .configure(&self.presenter.device, &target.config);
+                }
+                wgpu::CurrentSurfaceTexture::Lost if !retried => {
+                    retried = true;
+                    tracing::info!(role = target.role, "surface lost: recreated");
                     target.surface = self
                         .presenter
                         .instance
                         .create_surface(target.window.clone())
                         .map_err(|e| DisplayError::Window(e.to_string()))?;
-                    target.binding = None;
                     target
                         .surface
                         .configure(&self.presenter.device, &target.config);
@@ -323,7 +327,7 @@ impl<F: FnMut(Presented)> App<F> {
                         "no surface texture: {}",
                         match other {
                             wgpu::CurrentSurfaceTexture::Validation => "validation error",
-                            _ => "surface lost twice",
+                            _ => "outdated or lost again after a reconfiguration",
                         }
                     )));
                 }

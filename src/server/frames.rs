@@ -381,25 +381,36 @@ impl FrameThread {
             }
             Present::Cpu => self.maker.invert_on_cpu(made),
             Present::Window { tx, presented } => {
-                let f = made.stimulator.as_ref().expect("has a stimulator");
-                tx.send(DisplayEvent::Frame {
+                // The region's F_eff goes to the display thread and comes back for the CPU
+                // inversion below (the display drops its reference once uploaded).
+                let f = made.stimulator.as_mut().expect("has a stimulator");
+                let feff = Arc::new(std::mem::take(&mut f.region_feff_w_m2));
+                let sent = tx.send(DisplayEvent::Frame {
                     frame_id: made.frame_id,
                     region_px: region,
-                    region_feff_w_m2: Arc::new(f.region_feff_w_m2.clone()),
-                })
-                .map_err(|e| e.to_string())?;
+                    region_feff_w_m2: feff.clone(),
+                });
+                let back = |f: &mut crate::stimulator::StimulatorFrame| {
+                    f.region_feff_w_m2 = Arc::try_unwrap(feff).unwrap_or_else(|a| (*a).clone());
+                };
+                if let Err(e) = sent {
+                    back(f);
+                    return Err(e.to_string());
+                }
                 let deadline = Instant::now() + Duration::from_secs(2);
-                loop {
+                let shown = loop {
                     let left = deadline.saturating_duration_since(Instant::now());
                     match presented.recv_timeout(left) {
                         Ok(Ok(p)) if p.frame_id == made.frame_id && p.window == "fullscreen" => {
-                            break;
+                            break Ok(());
                         }
                         Ok(Ok(_)) => continue,
-                        Ok(Err(e)) => return Err(format!("the display stopped: {e}")),
-                        Err(_) => return Err("the window did not present within 2 s".into()),
+                        Ok(Err(e)) => break Err(format!("the display stopped: {e}")),
+                        Err(_) => break Err("the window did not present within 2 s".into()),
                     }
-                }
+                };
+                back(f);
+                shown?;
                 // The screen's codes for the latest-frame image and the simulated camera.
                 self.maker.invert_on_cpu(made);
             }

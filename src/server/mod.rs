@@ -165,43 +165,47 @@ impl Stats {
             recent: Mutex::new(VecDeque::with_capacity(RECENT)),
             registry: Registry::default(),
         };
-        registry.register("poses_received", "Poses received", s.poses_received.clone());
-        registry.register(
-            "frames_presented",
-            "Frames presented",
-            s.frames_presented.clone(),
-        );
-        registry.register(
-            "poses_dropped",
-            "Poses replaced by a newer one before rendering (free-running)",
-            s.poses_dropped.clone(),
-        );
-        registry.register(
-            "protocol_errors",
-            "Bad messages answered with an error",
-            s.protocol_errors.clone(),
-        );
-        registry.register(
-            "render_failures",
-            "Poses that could not be rendered or presented",
-            s.render_failures.clone(),
-        );
-        registry.register(
-            "undelivered_messages",
-            "Messages to clients dropped because the client did not read them",
-            s.undelivered.clone(),
-        );
+        for (name, help, counter) in [
+            ("poses_received", "Poses received", &s.poses_received),
+            ("frames_presented", "Frames presented", &s.frames_presented),
+            (
+                "poses_dropped",
+                "Poses replaced by a newer one before rendering (free-running)",
+                &s.poses_dropped,
+            ),
+            (
+                "protocol_errors",
+                "Bad messages answered with an error",
+                &s.protocol_errors,
+            ),
+            (
+                "render_failures",
+                "Poses that could not be rendered or presented",
+                &s.render_failures,
+            ),
+            (
+                "undelivered_messages",
+                "Messages to clients dropped because the client did not read them",
+                &s.undelivered,
+            ),
+        ] {
+            registry.register(name, help, counter.clone());
+        }
         registry.register("clients", "Connected clients", s.clients.clone());
-        registry.register(
-            "latency_seconds",
-            "Pose received to frame presented",
-            s.latency_seconds.clone(),
-        );
-        registry.register(
-            "render_seconds",
-            "Render and stimulator chain per frame",
-            s.render_seconds.clone(),
-        );
+        for (name, help, histogram) in [
+            (
+                "latency_seconds",
+                "Pose received to frame presented",
+                &s.latency_seconds,
+            ),
+            (
+                "render_seconds",
+                "Render and stimulator chain per frame",
+                &s.render_seconds,
+            ),
+        ] {
+            registry.register(name, help, histogram.clone());
+        }
         Stats { registry, ..s }
     }
 

@@ -22,10 +22,14 @@ struct Params {
     n_table: u32,
     // 1 / (f_hi - f_lo)
     inv_span: f32,
-    dither: u32,
+    _reserved: u32,
     // The target's size [px].
     target_px: vec2<u32>,
 };
+
+// 0 none, 1 ordered (8 x 8 Bayer), 2 blue noise: a pipeline constant, so that each pipeline
+// carries only its own dither (a software adapter pays for branches it does not take).
+override dither_kind: u32 = 0u;
 
 @group(0) @binding(0) var<storage, read> feff: array<f32>;
 @group(0) @binding(1) var<storage, read> table: array<f32>;
@@ -72,9 +76,9 @@ fn screen_code(pos: vec4<f32>) -> f32 {
         c = p.code_hi;
     } else if f >= p.f_lo {
         var t = 0.5;
-        if p.dither == 1u {
+        if dither_kind == 1u {
             t = (f32(bayer8(q.x, q.y)) + 0.5) / 64.0;
-        } else if p.dither == 2u {
+        } else if dither_kind == 2u {
             t = noise[(q.y % 64u) * 64u + q.x % 64u];
         }
         c = clamp(floor(code_of(f) + t), p.code_lo, p.code_hi);

@@ -143,7 +143,7 @@ struct Input {
     region_px: [u32; 2],
     buffer: wgpu::Buffer,
     origin_px: [u32; 2],
-    /// 0 none, 1 ordered, 2 blue noise (`lut.wgsl`).
+    /// 0 none, 1 ordered, 2 blue noise (`lut.wgsl`'s `dither_kind`).
     dither: u32,
 }
 
@@ -174,9 +174,12 @@ pub struct Presenter {
     shader: wgpu::ShaderModule,
     layout: wgpu::BindGroupLayout,
     pipeline_layout: wgpu::PipelineLayout,
-    pipelines: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
+    /// Render pipelines by target format and dither kind.
+    pipelines: Vec<((wgpu::TextureFormat, u32), wgpu::RenderPipeline)>,
     out_layout: wgpu::BindGroupLayout,
-    compute: wgpu::ComputePipeline,
+    compute_layout: wgpu::PipelineLayout,
+    /// Off-screen compute pipelines by dither kind.
+    computes: Vec<(u32, wgpu::ComputePipeline)>,
     bits: u32,
     lut: Option<Lut>,
     table_error: f64,
@@ -263,19 +266,10 @@ impl Presenter {
                 count: None,
             }],
         });
-        let compute = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        let compute_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("lut (off-screen)"),
-            layout: Some(
-                &device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("lut (off-screen)"),
-                    bind_group_layouts: &[Some(&layout), Some(&out_layout)],
-                    ..Default::default()
-                }),
-            ),
-            module: &shader,
-            entry_point: Some("cs_codes"),
-            compilation_options: Default::default(),
-            cache: None,
+            bind_group_layouts: &[Some(&layout), Some(&out_layout)],
+            ..Default::default()
         });
         let cells = crate::stimulator::dither::BLUE_NOISE_SIDE.pow(2) as f32;
         let thresholds: Vec<f32> = crate::stimulator::dither::blue_noise()
@@ -293,7 +287,8 @@ impl Presenter {
             noise,
             instance,
             out_layout,
-            compute,
+            compute_layout,
+            computes: Vec::new(),
             adapter,
             device,
             queue,
@@ -450,13 +445,14 @@ impl Presenter {
             });
         }
         let mut off = self.offscreen.take().expect("made above");
+        let compute = self.compute_pipeline();
         let encoded = self.bind(&mut off.binding, screen, [1.0; 2]).map(|b| {
             let mut encoder = self
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lut") });
             {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.compute);
+                pass.set_pipeline(&compute);
                 pass.set_bind_group(0, &b.group, &[]);
                 pass.set_bind_group(1, &off.out_group, &[]);
                 pass.dispatch_workgroups(off.words_per_row.div_ceil(128), screen[1], 1);
@@ -584,7 +580,7 @@ impl Presenter {
             lut.f_hi.to_bits(),
             lut.entries,
             (1.0 / (lut.f_hi - lut.f_lo)).to_bits(),
-            input.dither,
+            0,
             target_px[0],
             target_px[1],
         ];
@@ -629,9 +625,36 @@ impl Presenter {
         Ok(encoder)
     }
 
-    /// The LUT pipeline for a target format (made once per format).
+    /// The dither kind of the uploaded frame (`lut.wgsl`'s `dither_kind`).
+    fn dither_kind(&self) -> u32 {
+        self.input.as_ref().map_or(0, |i| i.dither)
+    }
+
+    /// The off-screen compute pipeline for the uploaded frame's dither (made once per kind).
+    fn compute_pipeline(&mut self) -> wgpu::ComputePipeline {
+        let kind = self.dither_kind();
+        if let Some((_, p)) = self.computes.iter().find(|(k, _)| *k == kind) {
+            return p.clone();
+        }
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("lut (off-screen)"),
+                layout: Some(&self.compute_layout),
+                module: &self.shader,
+                entry_point: Some("cs_codes"),
+                compilation_options: dither_constant(kind),
+                cache: None,
+            });
+        self.computes.push((kind, pipeline.clone()));
+        pipeline
+    }
+
+    /// The LUT pipeline for a target format and the uploaded frame's dither (made once per
+    /// pair).
     fn pipeline(&mut self, format: wgpu::TextureFormat) -> &wgpu::RenderPipeline {
-        if let Some(i) = self.pipelines.iter().position(|(f, _)| *f == format) {
+        let key = (format, self.dither_kind());
+        if let Some(i) = self.pipelines.iter().position(|(k, _)| *k == key) {
             return &self.pipelines[i].1;
         }
         let pipeline = self
@@ -653,7 +676,7 @@ impl Presenter {
                         blend: None,
                         write_mask: wgpu::ColorWrites::ALL,
                     })],
-                    compilation_options: Default::default(),
+                    compilation_options: dither_constant(key.1),
                 }),
                 primitive: Default::default(),
                 depth_stencil: None,
@@ -661,7 +684,7 @@ impl Presenter {
                 multiview_mask: None,
                 cache: None,
             });
-        self.pipelines.push((format, pipeline));
+        self.pipelines.push((key, pipeline));
         &self.pipelines.last().expect("pushed").1
     }
 
@@ -673,6 +696,19 @@ impl Presenter {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         })
+    }
+}
+
+/// The shader's `dither_kind` pipeline constant.
+fn dither_constant(kind: u32) -> wgpu::PipelineCompilationOptions<'static> {
+    const KINDS: [[(&str, f64); 1]; 3] = [
+        [("dither_kind", 0.0)],
+        [("dither_kind", 1.0)],
+        [("dither_kind", 2.0)],
+    ];
+    wgpu::PipelineCompilationOptions {
+        constants: &KINDS[kind.min(2) as usize],
+        ..Default::default()
     }
 }
 

@@ -229,5 +229,12 @@ fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
     assert_eq!(report["recording_flushed"].as_bool(), Some(true));
     let text = std::fs::read_to_string(&record).unwrap();
     assert_eq!(text.lines().filter(|l| l.contains("\"pose\"")).count(), 5);
+    // The recording replays: the same five poses.
+    let again = replay::read_poses(&record).unwrap();
+    assert_eq!(
+        again.iter().map(|p| p.frame_id).collect::<Vec<_>>(),
+        [0, 1, 2, 3, 4]
+    );
+    assert_eq!(again[0], nrho_pose(0));
     let _ = std::fs::remove_dir_all(&dir);
 }

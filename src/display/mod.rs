@@ -2,9 +2,12 @@
 //! F_eff into screen DN codes on the GPU (`lut.wgsl`: the inverse calibration as a direct
 //! table, dithering as [`crate::stimulator::calibration::Inverse::apply`], in f32).
 //!
-//! The same pass draws into three kinds of target: an off-screen texture read back to memory
-//! ([`Presenter::draw_offscreen`]; tests, headless runs), and the windows of [`window`]: a
+//! One shader function (`screen_code`), the same inputs and bindings, serve three kinds of
+//! target: an off-screen buffer of codes read back to memory ([`Presenter::draw_offscreen`];
+//! tests, headless runs; a compute pass, since a software rasteriser spends more on
+//! rasterising than on the LUT), and through a render pass the windows of [`window`]: a
 //! borderless fullscreen window on the stimulator's monitor and the operator's preview.
+//! The dither kind is a pipeline constant (one pipeline per target format and dither).
 //! The presenter never runs on the async runtime; `pollster` blocks on wgpu's futures.
 
 pub mod window;

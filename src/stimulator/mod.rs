@@ -70,7 +70,8 @@ pub enum StimulatorError {
     Measurement(String),
 }
 
-/// Time per stimulator stage [ms].
+/// Time per stimulator stage [ms]. With the one-to-one mapping `feff` includes the region
+/// (one pass for both) and `resample` is 0.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct StimulatorTimings {
     pub feff: f64,
@@ -216,19 +217,26 @@ impl Stimulator {
         }
         let mut t = StimulatorTimings::default();
         let t0 = Instant::now();
-        let mut feff_w_m2 = Vec::new();
-        feff(signal_e_per_s, self.k, &mut feff_w_m2);
-        t.feff = ms(t0);
-
-        let t0 = Instant::now();
         // The screen emits F_eff / T so that the camera, behind the collimator, gets F_eff.
-        let mut region_feff_w_m2 = Vec::new();
-        self.resampler.to_screen(
-            &feff_w_m2,
-            1.0 / self.config.collimator_transmittance,
-            &mut region_feff_w_m2,
-        );
-        t.resample = ms(t0);
+        let gain = 1.0 / self.config.collimator_transmittance;
+        let (mut feff_w_m2, mut region_feff_w_m2) = (Vec::new(), Vec::new());
+        if self.resampler.is_identity() {
+            // One pass for both images (one to one: the region is F_eff / T).
+            use rayon::prelude::*;
+            let k = self.k;
+            signal_e_per_s
+                .par_iter()
+                .map(|s| (s * k, s * k * gain))
+                .unzip_into_vecs(&mut feff_w_m2, &mut region_feff_w_m2);
+            t.feff = ms(t0);
+        } else {
+            feff(signal_e_per_s, self.k, &mut feff_w_m2);
+            t.feff = ms(t0);
+            let t0 = Instant::now();
+            self.resampler
+                .to_screen(&feff_w_m2, gain, &mut region_feff_w_m2);
+            t.resample = ms(t0);
+        }
         Ok(StimulatorFrame {
             feff_w_m2,
             region_feff_w_m2,

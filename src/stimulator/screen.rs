@@ -55,6 +55,11 @@ impl Resampler {
         self.region_px
     }
 
+    /// One screen pixel per camera pixel.
+    pub fn is_identity(&self) -> bool {
+        self.identity
+    }
+
     /// The region, in screen pixels, that covers a camera frame: `ceil(camera / scale)`.
     pub fn region_px_for(camera_px: [usize; 2], scale: [f64; 2]) -> [usize; 2] {
         // A hair under the exact quotient so that 1024 / (1024 / 512) is 512, not 513.

@@ -1,14 +1,16 @@
 //! Reflectance models (BRDFs): one file per model, dispatched by `match` on [`Brdf`].
 //!
-//! Every model here is linear in one scale parameter (`rho` or `w`), so an albedo of any type
-//! (normal, geometric, bond) converts to that parameter by one ratio computed with the
-//! parameter set to 1 ([`Brdf::with_albedo`]).
+//! Every model here but Hapke is linear in one scale parameter (`rho` or `w`), so an albedo
+//! of any type (normal, geometric, bond) converts to that parameter by one ratio computed with
+//! the parameter set to 1; Hapke's albedos rise monotonically with `w`, which is found by
+//! bisection ([`Brdf::with_albedo`]).
 //!
 //! Phase laws (paper Eq. 48, Eq. 11): `p_G Psi(alpha) = integral over the lit, visible unit
 //! hemisphere of f_r cos(theta_i) cos(theta_r) dOmega` for a distant sphere. Lambert, Area and
 //! Lommel-Seeliger have closed forms; the others are integrated numerically.
 
 pub mod area;
+pub mod hapke;
 pub mod lambert;
 pub mod lommel_seeliger;
 pub mod oren_nayar;
@@ -19,6 +21,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 pub use area::Area;
+pub use hapke::Hapke;
 pub use lambert::Lambert;
 pub use lommel_seeliger::LommelSeeliger;
 pub use oren_nayar::OrenNayar;
@@ -78,6 +81,7 @@ pub enum Brdf {
     OrenNayar(OrenNayar),
     Specular(Specular),
     Phong(Phong),
+    Hapke(Hapke),
 }
 
 impl Brdf {
@@ -89,6 +93,7 @@ impl Brdf {
             Brdf::OrenNayar(_) => "oren_nayar",
             Brdf::Specular(_) => "specular",
             Brdf::Phong(_) => "phong",
+            Brdf::Hapke(_) => "hapke",
         }
     }
 
@@ -102,6 +107,7 @@ impl Brdf {
             Brdf::OrenNayar(b) => b.eval(g.n, g.s, g.c, g.mu0, g.mu),
             Brdf::Specular(b) => b.eval(g.n, g.s, g.c, g.mu0),
             Brdf::Phong(b) => b.eval(g.n, g.s, g.c, g.mu0),
+            Brdf::Hapke(b) => b.eval(g.mu0, g.mu, g.s.dot(g.c)),
         }
     }
 
@@ -114,7 +120,7 @@ impl Brdf {
         }
     }
 
-    /// The scale parameter (`rho`, or `w` for Lommel-Seeliger).
+    /// The scale parameter (`rho`, or `w` for Lommel-Seeliger and Hapke).
     pub fn scale(&self) -> f64 {
         match self {
             Brdf::Lambert(b) => b.rho,
@@ -123,6 +129,7 @@ impl Brdf {
             Brdf::OrenNayar(b) => b.rho,
             Brdf::Specular(b) => b.rho,
             Brdf::Phong(b) => b.rho,
+            Brdf::Hapke(b) => b.w,
         }
     }
 
@@ -136,12 +143,30 @@ impl Brdf {
             Brdf::OrenNayar(b) => b.rho = scale,
             Brdf::Specular(b) => b.rho = scale,
             Brdf::Phong(b) => b.rho = scale,
+            Brdf::Hapke(b) => b.w = scale,
         }
         out
     }
 
-    /// The same model scaled so that its albedo of `kind` equals `value`.
+    /// The same model scaled so that its albedo of `kind` equals `value`. For Hapke, whose
+    /// albedos are not proportional to `w`, `w` in [0, 1] is found by bisection (to 1e-12);
+    /// an albedo beyond `w = 1` gives a non-finite scale, which the config refuses.
     pub fn with_albedo(&self, value: f64, kind: AlbedoType) -> Brdf {
+        if let Brdf::Hapke(_) = self {
+            if self.with_scale(1.0).albedo(kind) < value {
+                return self.with_scale(f64::NAN);
+            }
+            let (mut lo, mut hi) = (0.0, 1.0);
+            while hi - lo > 1e-12 {
+                let mid = 0.5 * (lo + hi);
+                if self.with_scale(mid).albedo(kind) < value {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            return self.with_scale(0.5 * (lo + hi));
+        }
         let unit = self.with_scale(1.0);
         let per_unit = unit.albedo(kind);
         self.with_scale(value / per_unit)
@@ -254,6 +279,17 @@ mod tests {
                 diffuse_weight: 0.7,
                 specular_weight: 0.3,
                 shininess: 10.0,
+            }),
+            Brdf::Hapke(Hapke {
+                w: 0.3,
+                b: 0.21,
+                c: 0.7,
+                b0_c: 0.5,
+                h_c: 0.1,
+                b0_s: 1.0,
+                h_s: 0.07,
+                theta_rad: 0.4,
+                filling_factor: 0.41,
             }),
         ]
     }

@@ -5,7 +5,9 @@
 pub mod raw;
 
 use crate::body::{Body, Shape, Sphere};
-use crate::brdf::{AlbedoType, Area, Brdf, Lambert, LommelSeeliger, OrenNayar, Phong, Specular};
+use crate::brdf::{
+    AlbedoType, Area, Brdf, Hapke, Lambert, LommelSeeliger, OrenNayar, Phong, Specular,
+};
 use crate::camera::{Brown, Intrinsics};
 use crate::detector::Detector;
 use crate::detector::noise::{DarkCurrent, Noise, Prnu, Readout, Shot};
@@ -122,7 +124,7 @@ impl Validator<'_> {
             self.err(key, value, &format!("one of {}", allowed.join(", ")))
         }
     }
-    fn need<T: Copy>(&self, key: &str, v: Option<T>, why: &str) -> R<T> {
+    fn need<T>(&self, key: &str, v: Option<T>, why: &str) -> R<T> {
         match v {
             Some(x) => Ok(x),
             None => Err(ConfigError::Invalid {
@@ -184,6 +186,61 @@ impl Validator<'_> {
         Path::new(self.file)
             .parent()
             .map_or_else(|| PathBuf::from(p), |d| d.join(p))
+    }
+
+    /// `body.hapke = [b, c, B0_C, h_C, B0_S, h_S, theta_rad, filling_factor]`, each in its
+    /// domain (`w` comes from the albedo).
+    fn hapke(&self, b: &RawBody) -> R<Hapke> {
+        let p = self.need(
+            "body.hapke",
+            b.hapke.clone(),
+            "required for brdf = \"hapke\": [b, c, B0_C, h_C, B0_S, h_S, theta_rad, \
+             filling_factor]",
+        )?;
+        if p.len() != 8 {
+            return self.err(
+                "body.hapke",
+                format!("{} values", p.len()),
+                "8 values: [b, c, B0_C, h_C, B0_S, h_S, theta_rad, filling_factor]",
+            );
+        }
+        let check = |i: usize, name: &str, lo: f64, hi: f64, open_hi: bool| {
+            let v = p[i];
+            let ok = v.is_finite() && v >= lo && if open_hi { v < hi } else { v <= hi };
+            if ok {
+                Ok(v)
+            } else {
+                let bracket = if open_hi { ")" } else { "]" };
+                self.err(
+                    "body.hapke",
+                    format!("{name} = {v}"),
+                    &format!("{name} in [{lo}, {hi}{bracket}"),
+                )
+            }
+        };
+        let positive = |i: usize, name: &str| {
+            let v = p[i];
+            if v.is_finite() && v > 0.0 {
+                Ok(v)
+            } else {
+                self.err(
+                    "body.hapke",
+                    format!("{name} = {v}"),
+                    &format!("{name} > 0"),
+                )
+            }
+        };
+        Ok(Hapke {
+            w: 1.0,
+            b: check(0, "b", 0.0, 1.0, true)?,
+            c: check(1, "c (back-lobe weight)", 0.0, 1.0, false)?,
+            b0_c: check(2, "B0_C", 0.0, 10.0, false)?,
+            h_c: positive(3, "h_C")?,
+            b0_s: check(4, "B0_S", 0.0, 10.0, false)?,
+            h_s: positive(5, "h_S")?,
+            theta_rad: check(6, "theta_rad", 0.0, std::f64::consts::FRAC_PI_2, true)?,
+            filling_factor: check(7, "filling_factor", 0.0, 0.752, true)?,
+        })
     }
 
     fn stimulator(&self, s: &RawStimulator, cam: &Intrinsics) -> R<StimulatorConfig> {
@@ -352,8 +409,10 @@ impl Validator<'_> {
                 "oren_nayar",
                 "specular",
                 "phong",
+                "hapke",
             ],
         )? {
+            "hapke" => Brdf::Hapke(self.hapke(b)?),
             "lambert" => Brdf::Lambert(Lambert { rho: 1.0 }),
             "area" => Brdf::Area(Area { rho: 1.0 }),
             "lommel_seeliger" => Brdf::LommelSeeliger(LommelSeeliger { w: 1.0 }),
@@ -405,14 +464,29 @@ impl Validator<'_> {
         let kind = match self.choice(
             "body.albedo_type",
             &b.albedo_type,
-            &["normal", "geometric", "bond"],
+            &["normal", "geometric", "bond", "single_scattering"],
         )? {
-            "normal" => AlbedoType::Normal,
-            "geometric" => AlbedoType::Geometric,
-            _ => AlbedoType::Bond,
+            "normal" => Some(AlbedoType::Normal),
+            "geometric" => Some(AlbedoType::Geometric),
+            "bond" => Some(AlbedoType::Bond),
+            _ => None,
         };
         let albedo = self.in_range("body.albedo", b.albedo, 0.0, 1.0)?;
-        let brdf = brdf.with_albedo(albedo, kind);
+        let brdf = match kind {
+            Some(kind) => brdf.with_albedo(albedo, kind),
+            // w itself, for the models that have one.
+            None if matches!(brdf, Brdf::Hapke(_) | Brdf::LommelSeeliger(_)) => {
+                brdf.with_scale(albedo)
+            }
+            None => {
+                return self.err(
+                    "body.albedo_type",
+                    "single_scattering",
+                    "normal, geometric or bond for this BRDF (single_scattering is w of hapke \
+                     and lommel_seeliger)",
+                );
+            }
+        };
         if !brdf.scale().is_finite() {
             return self.err("body.albedo", albedo, "an albedo this BRDF can reach");
         }

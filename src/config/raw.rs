@@ -47,6 +47,9 @@ pub struct RawBody {
     pub shininess: Option<f64>,
     pub diffuse_weight: Option<f64>,
     pub specular_weight: Option<f64>,
+    /// Hapke's parameters after `w`, in the reference configs' order:
+    /// `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling_factor]`.
+    pub hapke: Option<Vec<f64>>,
 }
 
 fn default_name() -> String {

@@ -5,6 +5,7 @@
 //! renderer asks a shape for its bounding radius, the surface point and normal in a direction
 //! from the centre, and the first intersection of a ray.
 
+pub mod maps;
 pub mod sphere;
 
 use crate::brdf::Brdf;
@@ -64,10 +65,33 @@ impl Shape {
     }
 }
 
-/// A body: name, shape and reflectance model.
+/// A body: name, shape and reflectance model, with an optional albedo map.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Body {
     pub name: String,
     pub shape: Shape,
+    /// The reflectance model, scaled to the body's configured albedo (used where there is no
+    /// map, or outside a regional one).
     pub brdf: Brdf,
+    pub albedo_map: Option<AlbedoMap>,
+}
+
+/// An albedo map and how its values become the BRDF's scale parameter.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AlbedoMap {
+    pub map: std::sync::Arc<maps::Map>,
+    /// BRDF scale per unit map value: the albedo of the configured type that a scale of 1
+    /// gives, inverted (1 where the map holds Hapke's or Lommel-Seeliger's `w` itself).
+    pub scale_per_value: f64,
+}
+
+impl AlbedoMap {
+    /// The BRDF scale at the body-frame unit direction `n_body`, or `fallback` outside the map.
+    #[inline]
+    pub fn scale_at(&self, n_body: DVec3, fallback: f64) -> f64 {
+        let (lon, lat) = crate::geometry::lon_lat(n_body);
+        self.map
+            .sample(lon, lat)
+            .map_or(fallback, |v| v * self.scale_per_value)
+    }
 }

@@ -490,10 +490,64 @@ impl Validator<'_> {
         if !brdf.scale().is_finite() {
             return self.err("body.albedo", albedo, "an albedo this BRDF can reach");
         }
+        let albedo_map = match &b.albedo_map {
+            None => None,
+            Some(m) => {
+                // Map values are albedos of `albedo_type` (w itself for single_scattering).
+                let scale_per_value = match kind {
+                    None => 1.0,
+                    Some(_) if matches!(brdf, Brdf::Hapke(_)) => {
+                        return self.err(
+                            "body.albedo_type",
+                            &b.albedo_type,
+                            "single_scattering with an albedo map on a hapke body (the map \
+                             holds w)",
+                        );
+                    }
+                    // Linear in the scale: the scale that gives an albedo of 1, per unit.
+                    Some(kind) => brdf.with_albedo(1.0, kind).scale(),
+                };
+                Some(crate::body::AlbedoMap {
+                    map: std::sync::Arc::new(self.map("body.albedo_map", m)?),
+                    scale_per_value,
+                })
+            }
+        };
         Ok(Body {
             name: b.name.clone(),
             shape: Shape::Sphere(Sphere { radius_m }),
             brdf,
+            albedo_map,
+        })
+    }
+
+    /// Loads a map with its encoding; `key` names it in errors.
+    fn map(&self, key: &str, m: &raw::RawMap) -> R<crate::body::maps::Map> {
+        use crate::body::maps::{Encoding, Map};
+        let d = Encoding::default();
+        let enc = Encoding {
+            gamma: self.positive(&format!("{key}.gamma"), m.gamma.unwrap_or(1.0))?,
+            domain: m.domain,
+            scale: m.scale.unwrap_or(1.0),
+            shift: m.shift.unwrap_or(0.0),
+            mean: m.mean,
+            lon_limits_deg: m.lon_limits_deg.unwrap_or(d.lon_limits_deg),
+            lat_limits_deg: m.lat_limits_deg.unwrap_or(d.lat_limits_deg),
+        };
+        if ![enc.scale, enc.shift].iter().all(|x| x.is_finite())
+            || enc
+                .domain
+                .is_some_and(|[a, b]| !(a.is_finite() && b.is_finite()))
+        {
+            return self.err(key, "scale/shift/domain", "finite numbers");
+        }
+        let path = self.path(&m.path);
+        Map::load(&path, &enc).or_else(|e| {
+            self.err(
+                &format!("{key}.path"),
+                path.display().to_string(),
+                &format!("a readable map ({e})"),
+            )
         })
     }
 

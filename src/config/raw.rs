@@ -50,6 +50,21 @@ pub struct RawBody {
     /// Hapke's parameters after `w`, in the reference configs' order:
     /// `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling_factor]`.
     pub hapke: Option<Vec<f64>>,
+    pub albedo_map: Option<RawMap>,
+}
+
+/// A texture map and its encoding (`docs/scene.md`, `body::maps::Encoding`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMap {
+    pub path: String,
+    pub gamma: Option<f64>,
+    pub domain: Option<[f64; 2]>,
+    pub scale: Option<f64>,
+    pub shift: Option<f64>,
+    pub mean: Option<f64>,
+    pub lon_limits_deg: Option<[f64; 2]>,
+    pub lat_limits_deg: Option<[f64; 2]>,
 }
 
 fn default_name() -> String {

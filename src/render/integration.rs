@@ -31,6 +31,7 @@ use super::pruning::{BOUNDARY, PRUNED};
 use super::sampling::GridTrig;
 use super::settings::Integration;
 use super::view::View;
+use crate::body::AlbedoMap;
 use crate::body::LitVisible;
 use crate::brdf::{Brdf, ExactForm, Local};
 use glam::DVec3;
@@ -295,6 +296,7 @@ pub fn integrate(
     trig: &GridTrig,
     keep: &[u8],
     brdf: &Brdf,
+    albedo: Option<&AlbedoMap>,
     method: Method,
     boundary_nodes: usize,
     a_sun_m2: f64,
@@ -330,6 +332,21 @@ pub fn integrate(
                 if class == PRUNED {
                     continue;
                 }
+                // With an albedo map the BRDF's scale is the map's at the quadrangle's centre
+                // (paper Sec. 4.4: maps sampled per quadrangle, constant over it).
+                let local;
+                let brdf = match albedo {
+                    Some(a) => {
+                        let n_body = view.csf.body_from_csf * trig.mid_dir(i, k);
+                        local = brdf.with_scale(a.scale_at(n_body, brdf.scale()));
+                        &local
+                    }
+                    None => brdf,
+                };
+                let method = match (method, albedo) {
+                    (Method::Exact(_), Some(_)) => brdf.exact_form().map_or(method, Method::Exact),
+                    _ => method,
+                };
                 let f = if class == BOUNDARY {
                     match &clip {
                         Some(c) => clipped(view, brdf, c, &nodes, trig, i, k),

@@ -328,6 +328,7 @@ fn render_in_pool(
             &trig,
             &buf.keep,
             &scene.body.brdf,
+            scene.body.albedo_map.as_ref(),
             method,
             settings.boundary_nodes as usize,
             a_sun,

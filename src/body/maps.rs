@@ -1,0 +1,379 @@
+//! Texture maps in the body-fixed frame (paper Sec. 4.4): equirectangular grids, first row at
+//! the top latitude, longitude increasing to the right, loaded from TIFF (8/16-bit integer or
+//! float32, one band or RGB) through documented encoding fields ([`Encoding`]) and sampled
+//! bilinearly with wrap-around in longitude and no seam or singularity at the poles.
+
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum MapError {
+    #[error("{file}: cannot read: {message}")]
+    Read { file: String, message: String },
+    #[error("{file}: {message}")]
+    Format { file: String, message: String },
+}
+
+/// How the stored numbers become physical values, applied in this order:
+/// 1. integers are divided by their full scale (255, 65535), floats are kept;
+/// 2. RGB becomes the mean of its three channels;
+/// 3. `v^gamma`;
+/// 4. `domain`: `min + (max - min) v`;
+/// 5. `scale v + shift`;
+/// 6. `mean`: the whole map is rescaled so that its area-weighted mean is this value.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Encoding {
+    pub gamma: f64,
+    pub domain: Option<[f64; 2]>,
+    pub scale: f64,
+    pub shift: f64,
+    pub mean: Option<f64>,
+    /// The grid's extent [deg]: longitude `[west, east]`, latitude `[south, north]`; a map
+    /// spanning 360 deg of longitude wraps around.
+    pub lon_limits_deg: [f64; 2],
+    pub lat_limits_deg: [f64; 2],
+}
+
+impl Default for Encoding {
+    fn default() -> Self {
+        Encoding {
+            gamma: 1.0,
+            domain: None,
+            scale: 1.0,
+            shift: 0.0,
+            mean: None,
+            lon_limits_deg: [-180.0, 180.0],
+            lat_limits_deg: [-90.0, 90.0],
+        }
+    }
+}
+
+/// A map of one physical value per texel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Map {
+    pub file: PathBuf,
+    pub width: usize,
+    pub height: usize,
+    /// Row-major, first row at the north limit.
+    pub values: Vec<f32>,
+    lon0: f64,
+    lat_top: f64,
+    dlon: f64,
+    dlat: f64,
+    wraps: bool,
+    /// The mean of the first and last rows: the value at the poles of a global map.
+    pole_north: f64,
+    pole_south: f64,
+}
+
+impl Map {
+    /// Reads a TIFF and applies `encoding`.
+    pub fn load(path: &Path, encoding: &Encoding) -> Result<Map, MapError> {
+        use tiff::decoder::{Decoder, DecodingResult};
+        let file = path.display().to_string();
+        let read = |e: &dyn std::fmt::Display| MapError::Read {
+            file: file.clone(),
+            message: e.to_string(),
+        };
+        let f = std::fs::File::open(path).map_err(|e| read(&e))?;
+        let mut dec = Decoder::new(std::io::BufReader::new(f))
+            .map_err(|e| read(&e))?
+            .with_limits(tiff::decoder::Limits::unlimited());
+        let (w, h) = dec.dimensions().map_err(|e| read(&e))?;
+        let channels = match dec.colortype().map_err(|e| read(&e))? {
+            tiff::ColorType::Gray(_) => 1,
+            tiff::ColorType::RGB(_) => 3,
+            tiff::ColorType::RGBA(_) => 4,
+            other => {
+                return Err(MapError::Format {
+                    file,
+                    message: format!("{other:?}: one band or RGB expected"),
+                });
+            }
+        };
+        let raw: Vec<f64> = match dec.read_image().map_err(|e| read(&e))? {
+            DecodingResult::U8(v) => v.iter().map(|&x| x as f64 / 255.0).collect(),
+            DecodingResult::U16(v) => v.iter().map(|&x| x as f64 / 65535.0).collect(),
+            DecodingResult::F32(v) => v.iter().map(|&x| x as f64).collect(),
+            DecodingResult::F64(v) => v,
+            _ => {
+                return Err(MapError::Format {
+                    file,
+                    message: "8/16-bit integer or float samples expected".into(),
+                });
+            }
+        };
+        let (w, h) = (w as usize, h as usize);
+        if raw.len() != w * h * channels {
+            return Err(MapError::Format {
+                file,
+                message: format!("{} samples for {w} x {h} x {channels}", raw.len()),
+            });
+        }
+        let colour = channels.min(3);
+        let values: Vec<f64> = raw
+            .chunks_exact(channels)
+            .map(|px| px[..colour].iter().sum::<f64>() / colour as f64)
+            .collect();
+        Map::from_values(path, w, h, values, encoding)
+    }
+
+    /// A map from decoded values (before the gamma, domain, scale, shift and mean steps).
+    pub fn from_values(
+        file: &Path,
+        width: usize,
+        height: usize,
+        values: Vec<f64>,
+        enc: &Encoding,
+    ) -> Result<Map, MapError> {
+        let bad = |message: String| MapError::Format {
+            file: file.display().to_string(),
+            message,
+        };
+        if width < 2 || height < 2 || values.len() != width * height {
+            return Err(bad(format!(
+                "a {width} x {height} grid of {} values",
+                values.len()
+            )));
+        }
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(bad(format!(
+                "texel {} (row {}, column {}) is not finite",
+                i,
+                i / width,
+                i % width
+            )));
+        }
+        let [west, east] = enc.lon_limits_deg.map(f64::to_radians);
+        let [south, north] = enc.lat_limits_deg.map(f64::to_radians);
+        if !(east > west && north > south) {
+            return Err(bad("longitude or latitude limits out of order".into()));
+        }
+        let mut v: Vec<f64> = values
+            .into_iter()
+            .map(|x| {
+                let x = if enc.gamma != 1.0 {
+                    x.max(0.0).powf(enc.gamma)
+                } else {
+                    x
+                };
+                let x = match enc.domain {
+                    Some([lo, hi]) => lo + (hi - lo) * x,
+                    None => x,
+                };
+                enc.scale * x + enc.shift
+            })
+            .collect();
+        let dlat = (north - south) / height as f64;
+        let area_mean = |v: &[f64]| {
+            let (mut s, mut a) = (0.0, 0.0);
+            for (r, row) in v.chunks(width).enumerate() {
+                let c = (north - (r as f64 + 0.5) * dlat).cos();
+                s += c * row.iter().sum::<f64>();
+                a += c * width as f64;
+            }
+            s / a
+        };
+        if let Some(m) = enc.mean {
+            let now = area_mean(&v);
+            if now == 0.0 {
+                return Err(bad("mean rescaling of a map whose mean is 0".into()));
+            }
+            v.iter_mut().for_each(|x| *x *= m / now);
+        }
+        let row_mean = |r: usize| v[r * width..(r + 1) * width].iter().sum::<f64>() / width as f64;
+        Ok(Map {
+            file: file.to_path_buf(),
+            width,
+            height,
+            pole_north: row_mean(0),
+            pole_south: row_mean(height - 1),
+            values: v.iter().map(|&x| x as f32).collect(),
+            lon0: west,
+            lat_top: north,
+            dlon: (east - west) / width as f64,
+            dlat,
+            wraps: ((east - west) - std::f64::consts::TAU).abs() < 1e-9,
+        })
+    }
+
+    /// The area-weighted mean value.
+    pub fn mean(&self) -> f64 {
+        let (mut s, mut a) = (0.0, 0.0);
+        for (r, row) in self.values.chunks(self.width).enumerate() {
+            let c = (self.lat_top - (r as f64 + 0.5) * self.dlat).cos();
+            s += c * row.iter().map(|&x| x as f64).sum::<f64>();
+            a += c * self.width as f64;
+        }
+        s / a
+    }
+
+    /// The value at body longitude and latitude [rad]: bilinear between texel centres, with
+    /// wrap-around in longitude for a global map. Between the first (last) row's centres and
+    /// the pole it blends towards the row's mean, so that the pole has one value. Outside a
+    /// regional map: `None`.
+    pub fn sample(&self, lon: f64, lat: f64) -> Option<f64> {
+        let mut x = (lon - self.lon0) / self.dlon - 0.5;
+        if self.wraps {
+            x = x.rem_euclid(self.width as f64);
+        } else if x < -0.5 || x > self.width as f64 - 0.5 {
+            return None;
+        }
+        let y = (self.lat_top - lat) / self.dlat - 0.5;
+        let top_pole = self.wraps && (self.lat_top - std::f64::consts::FRAC_PI_2).abs() < 1e-9;
+        let bottom = self.lat_top - self.height as f64 * self.dlat;
+        let bottom_pole = self.wraps && (bottom + std::f64::consts::FRAC_PI_2).abs() < 1e-9;
+        if y < -0.5 - 1e-12 || y > self.height as f64 - 0.5 + 1e-12 {
+            return None;
+        }
+        let row = |r: usize| {
+            let x0 = x.floor();
+            let t = x - x0;
+            let (c0, c1) = if self.wraps {
+                let c0 = (x0 as isize).rem_euclid(self.width as isize) as usize;
+                (c0, (c0 + 1) % self.width)
+            } else {
+                let c0 = (x0.max(0.0) as usize).min(self.width - 1);
+                (c0, (c0 + 1).min(self.width - 1))
+            };
+            let v = &self.values[r * self.width..];
+            (1.0 - t) * v[c0] as f64 + t * v[c1] as f64
+        };
+        if y < 0.0 {
+            // Between the north pole (or the map's edge) and the first row's centres.
+            let edge = if top_pole { self.pole_north } else { row(0) };
+            let t = y + 0.5; // 0 at the edge, 0.5 at the centres
+            return Some(edge + (row(0) - edge) * (2.0 * t));
+        }
+        let last = self.height - 1;
+        if y > last as f64 {
+            let edge = if bottom_pole {
+                self.pole_south
+            } else {
+                row(last)
+            };
+            let t = y - last as f64; // 0 at the centres, 0.5 at the edge
+            return Some(row(last) + (edge - row(last)) * (2.0 * t));
+        }
+        let r0 = y.floor() as usize;
+        let t = y - r0 as f64;
+        Some((1.0 - t) * row(r0) + t * row((r0 + 1).min(last)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::{FRAC_PI_2, PI};
+
+    fn ramp(w: usize, h: usize, f: impl Fn(usize, usize) -> f64) -> Map {
+        let v = (0..w * h).map(|i| f(i % w, i / w)).collect();
+        Map::from_values(Path::new("test"), w, h, v, &Encoding::default()).unwrap()
+    }
+
+    #[test]
+    fn bilinear_between_centres_and_wrap_around_in_longitude() {
+        // 8 x 4 map: value = column index.
+        let m = ramp(8, 4, |c, _| c as f64);
+        let dlon = 2.0 * PI / 8.0;
+        // The centre of column 2 and half-way to column 3.
+        let lon = |c: f64| -PI + (c + 0.5) * dlon;
+        assert!((m.sample(lon(2.0), 0.1).unwrap() - 2.0).abs() < 1e-12);
+        assert!((m.sample(lon(2.5), 0.1).unwrap() - 2.5).abs() < 1e-12);
+        // Across the seam at 180 deg: half-way between the last column (7) and the first (0).
+        assert!((m.sample(PI, 0.1).unwrap() - 3.5).abs() < 1e-12);
+        assert!((m.sample(-PI, 0.1).unwrap() - 3.5).abs() < 1e-12);
+        // Continuous across the seam.
+        let e = 1e-9;
+        assert!((m.sample(PI - e, 0.1).unwrap() - m.sample(-PI + e, 0.1).unwrap()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_poles_have_one_value_whatever_the_longitude() {
+        let m = ramp(8, 4, |c, r| (c * 10 + r) as f64);
+        let north: Vec<f64> = (0..16)
+            .map(|k| m.sample(k as f64 * 0.4, FRAC_PI_2).unwrap())
+            .collect();
+        assert!(
+            north.iter().all(|v| (v - north[0]).abs() < 1e-12),
+            "{north:?}"
+        );
+        let south = m.sample(1.0, -FRAC_PI_2).unwrap();
+        assert!((south - m.sample(-2.0, -FRAC_PI_2).unwrap()).abs() < 1e-12);
+        // Continuous from the first row's centres to the pole.
+        let first_row_lat = FRAC_PI_2 - 0.5 * PI / 4.0;
+        let just_below = m.sample(0.3, first_row_lat - 1e-9).unwrap();
+        let just_above = m.sample(0.3, first_row_lat + 1e-9).unwrap();
+        assert!((just_below - just_above).abs() < 1e-6);
+    }
+
+    #[test]
+    fn encoding_steps_apply_in_order_and_mean_rescaling_hits_its_target() {
+        let enc = Encoding {
+            gamma: 2.0,
+            domain: Some([0.1, 0.5]),
+            scale: 2.0,
+            shift: 1.0,
+            ..Default::default()
+        };
+        let m = Map::from_values(Path::new("t"), 2, 2, vec![0.5; 4], &enc).unwrap();
+        // 0.5^2 = 0.25 -> 0.1 + 0.4 * 0.25 = 0.2 -> 2 * 0.2 + 1 = 1.4
+        assert!((m.values[0] as f64 - 1.4).abs() < 1e-6);
+        let enc = Encoding {
+            mean: Some(0.12),
+            ..Default::default()
+        };
+        let m = Map::from_values(
+            Path::new("t"),
+            4,
+            4,
+            (0..16).map(|i| i as f64 + 1.0).collect(),
+            &enc,
+        )
+        .unwrap();
+        assert!((m.mean() - 0.12).abs() < 1e-7);
+    }
+
+    #[test]
+    fn regional_maps_do_not_wrap_and_say_where_they_end() {
+        let enc = Encoding {
+            lon_limits_deg: [10.0, 20.0],
+            lat_limits_deg: [-5.0, 5.0],
+            ..Default::default()
+        };
+        let m = Map::from_values(Path::new("t"), 4, 4, vec![1.0; 16], &enc).unwrap();
+        assert_eq!(m.sample(15f64.to_radians(), 0.0), Some(1.0));
+        assert_eq!(m.sample(25f64.to_radians(), 0.0), None);
+        assert_eq!(m.sample(15f64.to_radians(), 6f64.to_radians()), None);
+    }
+
+    /// The Moon's albedo map of ../shared (2048 x 1024 RGB, LZW) decodes with the ABRAM
+    /// encoding (gamma 2.8, domain [0.12, 0.48]) into plausible values.
+    #[test]
+    fn the_shared_lunar_albedo_map_loads() {
+        let p = Path::new("../shared/data/moon/lroc_color_poles_2k.tif");
+        let enc = Encoding {
+            gamma: 2.8,
+            domain: Some([0.12, 0.48]),
+            ..Default::default()
+        };
+        let m = Map::load(p, &enc).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((m.width, m.height), (2048, 1024));
+        let mean = m.mean();
+        assert!(mean > 0.12 && mean < 0.3, "{mean}");
+        let dem = Map::load(
+            Path::new("../shared/data/moon/ldem_4.tif"),
+            &Encoding::default(),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((dem.width, dem.height), (1440, 720));
+        let (lo, hi) = dem
+            .values
+            .iter()
+            .fold((f32::MAX, f32::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
+        assert!(
+            lo > -10.0 && lo < -8.0 && hi > 10.0 && hi < 11.0,
+            "{lo} .. {hi} km"
+        );
+    }
+}

@@ -61,6 +61,9 @@ pub struct Map {
     dlon: f64,
     dlat: f64,
     wraps: bool,
+    /// Whether the first (last) row borders the north (south) pole of a global map.
+    north_pole: bool,
+    south_pole: bool,
     /// The mean of the first and last rows: the value at the poles of a global map.
     pole_north: f64,
     pole_south: f64,
@@ -182,6 +185,7 @@ impl Map {
             v.iter_mut().for_each(|x| *x *= m / now);
         }
         let row_mean = |r: usize| v[r * width..(r + 1) * width].iter().sum::<f64>() / width as f64;
+        let wraps = ((east - west) - std::f64::consts::TAU).abs() < 1e-9;
         Ok(Map {
             file: file.to_path_buf(),
             width,
@@ -193,7 +197,9 @@ impl Map {
             lat_top: north,
             dlon: (east - west) / width as f64,
             dlat,
-            wraps: ((east - west) - std::f64::consts::TAU).abs() < 1e-9,
+            wraps,
+            north_pole: wraps && (north - std::f64::consts::FRAC_PI_2).abs() < 1e-9,
+            south_pole: wraps && (south + std::f64::consts::FRAC_PI_2).abs() < 1e-9,
         })
     }
 
@@ -220,9 +226,6 @@ impl Map {
             return None;
         }
         let y = (self.lat_top - lat) / self.dlat - 0.5;
-        let top_pole = self.wraps && (self.lat_top - std::f64::consts::FRAC_PI_2).abs() < 1e-9;
-        let bottom = self.lat_top - self.height as f64 * self.dlat;
-        let bottom_pole = self.wraps && (bottom + std::f64::consts::FRAC_PI_2).abs() < 1e-9;
         if y < -0.5 - 1e-12 || y > self.height as f64 - 0.5 + 1e-12 {
             return None;
         }
@@ -241,13 +244,17 @@ impl Map {
         };
         if y < 0.0 {
             // Between the north pole (or the map's edge) and the first row's centres.
-            let edge = if top_pole { self.pole_north } else { row(0) };
+            let edge = if self.north_pole {
+                self.pole_north
+            } else {
+                row(0)
+            };
             let t = y + 0.5; // 0 at the edge, 0.5 at the centres
             return Some(edge + (row(0) - edge) * (2.0 * t));
         }
         let last = self.height - 1;
         if y > last as f64 {
-            let edge = if bottom_pole {
+            let edge = if self.south_pole {
                 self.pole_south
             } else {
                 row(last)

@@ -149,23 +149,43 @@ impl Brdf {
     }
 
     /// The same model scaled so that its albedo of `kind` equals `value`. For Hapke, whose
-    /// albedos are not proportional to `w`, `w` in [0, 1] is found by bisection (to 1e-12);
-    /// an albedo beyond `w = 1` gives a non-finite scale, which the config refuses.
+    /// albedos rise with `w` but not in proportion, `w` in [0, 1] is found by the Illinois
+    /// variant of regula falsi (to 1e-12 in albedo, a handful of evaluations); an albedo beyond
+    /// `w = 1` gives a non-finite scale, which the config refuses.
     pub fn with_albedo(&self, value: f64, kind: AlbedoType) -> Brdf {
         if let Brdf::Hapke(_) = self {
-            if self.with_scale(1.0).albedo(kind) < value {
+            if value <= 0.0 {
+                return self.with_scale(0.0);
+            }
+            let f = |w: f64| self.with_scale(w).albedo(kind) - value;
+            // At w = 0 every albedo is 0 (the Bond albedo's phase integral would be 0/0).
+            let (mut a, mut b) = (0.0, 1.0);
+            let (mut fa, mut fb) = (-value, f(b));
+            if fb < 0.0 {
                 return self.with_scale(f64::NAN);
             }
-            let (mut lo, mut hi) = (0.0, 1.0);
-            while hi - lo > 1e-12 {
-                let mid = 0.5 * (lo + hi);
-                if self.with_scale(mid).albedo(kind) < value {
-                    lo = mid;
+            let mut side = 0;
+            for _ in 0..100 {
+                let c = (a * fb - b * fa) / (fb - fa);
+                let fc = f(c);
+                if fc.abs() < 1e-12 || (b - a).abs() < 1e-15 {
+                    return self.with_scale(c);
+                }
+                if fc * fb > 0.0 {
+                    (b, fb) = (c, fc);
+                    if side == -1 {
+                        fa *= 0.5;
+                    }
+                    side = -1;
                 } else {
-                    hi = mid;
+                    (a, fa) = (c, fc);
+                    if side == 1 {
+                        fb *= 0.5;
+                    }
+                    side = 1;
                 }
             }
-            return self.with_scale(0.5 * (lo + hi));
+            return self.with_scale(0.5 * (a + b));
         }
         let unit = self.with_scale(1.0);
         let per_unit = unit.albedo(kind);

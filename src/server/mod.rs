@@ -415,20 +415,13 @@ impl Server {
             .enable_all()
             .build()
             .map_err(|e| ServerError::Runtime(e.to_string()))?;
-        let tcp = runtime
-            .block_on(tokio::net::TcpListener::bind(options.listen))
-            .map_err(|source| ServerError::Bind {
-                what: "pose listener",
-                addr: options.listen,
-                source,
-            })?;
-        let http_listener = runtime
-            .block_on(tokio::net::TcpListener::bind(options.http))
-            .map_err(|source| ServerError::Bind {
-                what: "HTTP listener",
-                addr: options.http,
-                source,
-            })?;
+        let bind = |what: &'static str, addr: SocketAddr| {
+            runtime
+                .block_on(tokio::net::TcpListener::bind(addr))
+                .map_err(|source| ServerError::Bind { what, addr, source })
+        };
+        let tcp = bind("pose listener", options.listen)?;
+        let http_listener = bind("HTTP listener", options.http)?;
         let tcp_addr = tcp
             .local_addr()
             .map_err(|e| ServerError::Runtime(e.to_string()))?;

@@ -7,7 +7,7 @@
 
 mod common;
 use common::*;
-use optistim::brdf::Hapke;
+use optistim::brdf::{Hapke, HapkeParams};
 use optistim::render::Renderer;
 
 #[test]
@@ -19,17 +19,19 @@ fn hapke_matches_eradiate_to_1e_6_at_480_geometries() {
         let [w, b, c, theta_deg, b0, h, i, e, psi, want] = v[..] else {
             panic!("{line}");
         };
-        let brdf = Hapke {
+        let brdf = Hapke::new(
             w,
-            b,
-            c,
-            b0_c: 0.0,
-            h_c: 1.0,
-            b0_s: b0,
-            h_s: h,
-            theta_rad: theta_deg.to_radians(),
-            filling_factor: 0.0,
-        };
+            HapkeParams {
+                b,
+                c,
+                b0_c: 0.0,
+                h_c: 1.0,
+                b0_s: b0,
+                h_s: h,
+                theta_rad: theta_deg.to_radians(),
+                filling_factor: 0.0,
+            },
+        );
         let (i, e, psi) = (i.to_radians(), e.to_radians(), psi.to_radians());
         let cos_g = i.cos() * e.cos() + i.sin() * e.sin() * psi.cos();
         let got = brdf.eval(i.cos(), e.cos(), cos_g);

@@ -21,12 +21,10 @@
 
 use std::f64::consts::{FRAC_1_PI, PI};
 
-/// Parameters, in the order of the reference configs (`methodology.md`) after `w`:
-/// `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling factor]`.
+/// Hapke's parameters besides `w`, in the order of the reference configs
+/// (`methodology.md`): `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling factor]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Hapke {
-    /// Single-scattering albedo.
-    pub w: f64,
+pub struct HapkeParams {
     /// Henyey-Greenstein asymmetry, [0, 1).
     pub b: f64,
     /// Weight of the back-scattering lobe, [0, 1].
@@ -43,11 +41,40 @@ pub struct Hapke {
     pub filling_factor: f64,
 }
 
+/// The Hapke BRDF: `w` and the other parameters, with what depends on them alone computed
+/// once ([`Hapke::new`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hapke {
+    /// Single-scattering albedo (may be changed: nothing derived depends on it).
+    pub w: f64,
+    p: HapkeParams,
+    /// The porosity factor K, tan(theta) and chi(theta).
+    k: f64,
+    tan_t: f64,
+    chi: f64,
+}
+
 impl Hapke {
+    pub fn new(w: f64, p: HapkeParams) -> Hapke {
+        let x = 1.209 * p.filling_factor.powf(2.0 / 3.0);
+        let k = if x < 1e-12 { 1.0 } else { -(1.0 - x).ln() / x };
+        let tan_t = p.theta_rad.tan();
+        Hapke {
+            w,
+            p,
+            k,
+            tan_t,
+            chi: 1.0 / (1.0 + PI * tan_t * tan_t).sqrt(),
+        }
+    }
+
+    pub fn params(&self) -> &HapkeParams {
+        &self.p
+    }
+
     /// The porosity factor `K` (Hapke 2008, Eq. 14), 1 at zero filling factor.
     pub fn porosity_factor(&self) -> f64 {
-        let x = 1.209 * self.filling_factor.powf(2.0 / 3.0);
-        if x < 1e-12 { 1.0 } else { -(1.0 - x).ln() / x }
+        self.k
     }
 
     /// `f_r` [1/sr] for cosines `mu0`, `mu` (both > 0) and phase angle cosine `cos_g`.
@@ -65,23 +92,25 @@ impl Hapke {
         } else {
             1.0
         };
-        let rough = Roughness::new(self.theta_rad, mu0, sin_i, mu, sin_e, cos_psi);
-        let g = cos_g.acos();
-        let k = self.porosity_factor();
-        let half = (0.5 * g).tan();
-        let b_s = self.b0_s / (1.0 + half / self.h_s);
-        let b_c = if self.b0_c == 0.0 {
+        let rough = Roughness::new(self, mu0, sin_i, mu, sin_e, cos_psi);
+        let k = self.k;
+        // tan(g/2) from cos g.
+        let half = ((1.0 - cos_g) / (1.0 + cos_g).max(1e-300)).sqrt();
+        let b_s = self.p.b0_s / (1.0 + half / self.p.h_s);
+        let b_c = if self.p.b0_c == 0.0 {
             0.0
         } else {
-            let z = half / self.h_c;
+            let z = half / self.p.h_c;
             let t = if z < 1e-8 {
                 1.0
             } else {
                 (1.0 - (-z).exp()) / z
             };
-            self.b0_c * (1.0 + t) / (2.0 * (1.0 + z) * (1.0 + z))
+            self.p.b0_c * (1.0 + t) / (2.0 * (1.0 + z) * (1.0 + z))
         };
-        let m = h2002(self.w, rough.mu0e / k) * h2002(self.w, rough.mue / k) - 1.0;
+        let gamma = (1.0 - self.w).sqrt();
+        let r0 = (1.0 - gamma) / (1.0 + gamma);
+        let m = h2002_r0(self.w, r0, rough.mu0e / k) * h2002_r0(self.w, r0, rough.mue / k) - 1.0;
         let r = k * self.w * 0.25 * FRAC_1_PI * rough.mu0e / (rough.mu0e + rough.mue)
             * (self.phase_function(cos_g) * (1.0 + b_s) + m)
             * (1.0 + b_c)
@@ -91,7 +120,7 @@ impl Hapke {
 
     /// The two-term Henyey-Greenstein phase function at phase angle `g` (`cos_g`).
     pub fn phase_function(&self, cos_g: f64) -> f64 {
-        let (b, c) = (self.b, self.c);
+        let (b, c) = (self.p.b, self.p.c);
         let num = 1.0 - b * b;
         let forward = num / (1.0 + 2.0 * b * cos_g + b * b).powf(1.5);
         let back = num / (1.0 - 2.0 * b * cos_g + b * b).powf(1.5);
@@ -103,11 +132,16 @@ impl Hapke {
 /// one for all `w`.
 #[inline]
 pub fn h2002(w: f64, x: f64) -> f64 {
+    let gamma = (1.0 - w).sqrt();
+    h2002_r0(w, (1.0 - gamma) / (1.0 + gamma), x)
+}
+
+/// [`h2002`] with its `r0 = (1 - sqrt(1 - w)) / (1 + sqrt(1 - w))` given.
+#[inline]
+fn h2002_r0(w: f64, r0: f64, x: f64) -> f64 {
     if x <= 0.0 {
         return 1.0;
     }
-    let gamma = (1.0 - w).sqrt();
-    let r0 = (1.0 - gamma) / (1.0 + gamma);
     1.0 / (1.0 - w * x * (r0 + 0.5 * (1.0 - 2.0 * r0 * x) * ((1.0 + x) / x).ln()))
 }
 
@@ -119,16 +153,15 @@ struct Roughness {
 }
 
 impl Roughness {
-    fn new(theta: f64, mu0: f64, sin_i: f64, mu: f64, sin_e: f64, cos_psi: f64) -> Roughness {
-        if theta < 1e-9 {
+    fn new(h: &Hapke, mu0: f64, sin_i: f64, mu: f64, sin_e: f64, cos_psi: f64) -> Roughness {
+        if h.p.theta_rad < 1e-9 {
             return Roughness {
                 mu0e: mu0,
                 mue: mu,
                 s: 1.0,
             };
         }
-        let tan_t = theta.tan();
-        let chi = 1.0 / (1.0 + PI * tan_t * tan_t).sqrt();
+        let (tan_t, chi) = (h.tan_t, h.chi);
         // cot x of the incidence and emission angles (infinite at normal incidence).
         let cot = |cos: f64, sin: f64| if sin > 0.0 { cos / sin } else { f64::INFINITY };
         let (cot_i, cot_e) = (cot(mu0, sin_i), cot(mu, sin_e));
@@ -138,14 +171,14 @@ impl Roughness {
         // The effective cosines of each direction alone (eta).
         let eta0 = chi * (mu0 + sin_i * tan_t * e2_i / (2.0 - e1_i));
         let eta = chi * (mu + sin_e * tan_t * e2_e / (2.0 - e1_e));
-        let psi = cos_psi.acos();
-        let sin2_half = (0.5 * psi).sin().powi(2);
-        let f = if psi >= PI - 1e-12 {
+        // sin^2(psi/2) and tan(psi/2) from cos(psi); f = 0 at psi = pi.
+        let sin2_half = 0.5 * (1.0 - cos_psi);
+        let f = if cos_psi <= -1.0 + 1e-15 {
             0.0
         } else {
-            (-2.0 * (0.5 * psi).tan()).exp()
+            (-2.0 * (sin2_half / (1.0 - sin2_half)).sqrt()).exp()
         };
-        let frac = psi * FRAC_1_PI;
+        let frac = cos_psi.acos() * FRAC_1_PI;
         let (mu0e, mue, shadow) = if cot_i >= cot_e {
             // i <= e.
             let d = 2.0 - e1_e - frac * e1_i;
@@ -168,9 +201,8 @@ impl Roughness {
 mod tests {
     use super::*;
 
-    fn smooth(w: f64) -> Hapke {
-        Hapke {
-            w,
+    fn params() -> HapkeParams {
+        HapkeParams {
             b: 0.0,
             c: 0.5,
             b0_c: 0.0,
@@ -180,6 +212,10 @@ mod tests {
             theta_rad: 0.0,
             filling_factor: 0.0,
         }
+    }
+
+    fn smooth(w: f64) -> Hapke {
+        Hapke::new(w, params())
     }
 
     /// With isotropic scattering, no opposition effects, no roughness and K = 1, single
@@ -228,10 +264,12 @@ mod tests {
 
     #[test]
     fn porosity_factor_is_one_at_zero_filling_and_grows_with_it() {
-        let mut h = smooth(0.3);
-        assert_eq!(h.porosity_factor(), 1.0);
-        h.filling_factor = 0.41; // lunar regolith
-        let k = h.porosity_factor();
+        assert_eq!(smooth(0.3).porosity_factor(), 1.0);
+        let lunar = HapkeParams {
+            filling_factor: 0.41, // lunar regolith
+            ..params()
+        };
+        let k = Hapke::new(0.3, lunar).porosity_factor();
         assert!(k > 1.5 && k < 2.5, "{k}");
     }
 }

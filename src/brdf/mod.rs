@@ -21,7 +21,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 pub use area::Area;
-pub use hapke::Hapke;
+pub use hapke::{Hapke, HapkeParams};
 pub use lambert::Lambert;
 pub use lommel_seeliger::LommelSeeliger;
 pub use oren_nayar::OrenNayar;
@@ -300,17 +300,19 @@ mod tests {
                 specular_weight: 0.3,
                 shininess: 10.0,
             }),
-            Brdf::Hapke(Hapke {
-                w: 0.3,
-                b: 0.21,
-                c: 0.7,
-                b0_c: 0.5,
-                h_c: 0.1,
-                b0_s: 1.0,
-                h_s: 0.07,
-                theta_rad: 0.4,
-                filling_factor: 0.41,
-            }),
+            Brdf::Hapke(Hapke::new(
+                0.3,
+                HapkeParams {
+                    b: 0.21,
+                    c: 0.7,
+                    b0_c: 0.5,
+                    h_c: 0.1,
+                    b0_s: 1.0,
+                    h_s: 0.07,
+                    theta_rad: 0.4,
+                    filling_factor: 0.41,
+                },
+            )),
         ]
     }
 

@@ -6,7 +6,7 @@ pub mod raw;
 
 use crate::body::{Body, Shape, Sphere};
 use crate::brdf::{
-    AlbedoType, Area, Brdf, Hapke, Lambert, LommelSeeliger, OrenNayar, Phong, Specular,
+    AlbedoType, Area, Brdf, Hapke, HapkeParams, Lambert, LommelSeeliger, OrenNayar, Phong, Specular,
 };
 use crate::camera::{Brown, Intrinsics};
 use crate::detector::Detector;
@@ -230,17 +230,19 @@ impl Validator<'_> {
                 )
             }
         };
-        Ok(Hapke {
-            w: 1.0,
-            b: check(0, "b", 0.0, 1.0, true)?,
-            c: check(1, "c (back-lobe weight)", 0.0, 1.0, false)?,
-            b0_c: check(2, "B0_C", 0.0, 10.0, false)?,
-            h_c: positive(3, "h_C")?,
-            b0_s: check(4, "B0_S", 0.0, 10.0, false)?,
-            h_s: positive(5, "h_S")?,
-            theta_rad: check(6, "theta_rad", 0.0, std::f64::consts::FRAC_PI_2, true)?,
-            filling_factor: check(7, "filling_factor", 0.0, 0.752, true)?,
-        })
+        Ok(Hapke::new(
+            1.0,
+            HapkeParams {
+                b: check(0, "b", 0.0, 1.0, true)?,
+                c: check(1, "c (back-lobe weight)", 0.0, 1.0, false)?,
+                b0_c: check(2, "B0_C", 0.0, 10.0, false)?,
+                h_c: positive(3, "h_C")?,
+                b0_s: check(4, "B0_S", 0.0, 10.0, false)?,
+                h_s: positive(5, "h_S")?,
+                theta_rad: check(6, "theta_rad", 0.0, std::f64::consts::FRAC_PI_2, true)?,
+                filling_factor: check(7, "filling_factor", 0.0, 0.752, true)?,
+            },
+        ))
     }
 
     fn stimulator(&self, s: &RawStimulator, cam: &Intrinsics) -> R<StimulatorConfig> {

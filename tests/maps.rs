@@ -94,3 +94,60 @@ fn the_moon_renders_with_the_shared_albedo_map() {
     let (p10, p90) = (lit[lit.len() / 10], lit[lit.len() * 9 / 10]);
     assert!(p90 / p10 > 1.8, "{p10} .. {p90}");
 }
+
+/// A scene with a DEM of `h(lat)` [m] on a 64 x 32 global grid, rendered by the trapezoidal
+/// rule (the closed forms assume the shape's own normals), and the same scene without it.
+fn with_dem(h: impl Fn(f64) -> f64) -> (Vec<f64>, Vec<f64>, usize) {
+    let spec = SceneSpec {
+        albedo: 0.2,
+        camera_m: [10.0 * R_MOON, 0.0, 0.0],
+        render: "integration = \"trapezoidal\"",
+        ..Default::default()
+    };
+    let plain = spec.config();
+    let mut relief = plain.clone();
+    let (w, hgt) = (64usize, 32usize);
+    let values = (0..w * hgt)
+        .map(|i| {
+            let lat = std::f64::consts::FRAC_PI_2
+                - ((i / w) as f64 + 0.5) * std::f64::consts::PI / hgt as f64;
+            h(lat)
+        })
+        .collect();
+    let map = Map::from_values(Path::new("dem"), w, hgt, values, &Encoding::default()).unwrap();
+    relief.scene.body.relief = Some(optistim::body::Relief::new(map, R_MOON).unwrap());
+    let n = plain.scene.camera.intrinsics.width_px as usize;
+    (total(&plain).1, total(&relief).1, n)
+}
+
+#[test]
+fn a_flat_dem_changes_nothing() {
+    let (plain, relief, _) = with_dem(|_| 0.0);
+    let (a, b): (f64, f64) = (plain.iter().sum(), relief.iter().sum());
+    assert!((b / a - 1.0).abs() < 1e-12, "{b} vs {a}");
+}
+
+/// A DEM rising northward with slope s everywhere (`h = s R lat`) tilts every normal by
+/// atan(s) towards the south: at zero phase the disk centre of a Lambert sphere dims by
+/// `cos^2(atan s) = 1 / (1 + s^2)` (both mu0 and mu shrink).
+#[test]
+fn a_sloping_dem_tilts_the_normals_by_its_slope() {
+    let s = 0.5;
+    let (plain, relief, n) = with_dem(|lat| s * R_MOON * lat);
+    let centre = |img: &[f64]| {
+        let c = n / 2;
+        let mut sum = 0.0;
+        for j in c - 2..c + 3 {
+            for i in c - 2..c + 3 {
+                sum += img[j * n + i];
+            }
+        }
+        sum
+    };
+    let ratio = centre(&relief) / centre(&plain);
+    eprintln!(
+        "centre brightness ratio {ratio:.5}, expected {:.5}",
+        1.0 / (1.0 + s * s)
+    );
+    assert!((ratio * (1.0 + s * s) - 1.0).abs() < 0.01, "{ratio}");
+}

@@ -203,6 +203,34 @@ impl Map {
         })
     }
 
+    /// Texel size in longitude and latitude [rad].
+    pub fn spacing_rad(&self) -> (f64, f64) {
+        (self.dlon, self.dlat)
+    }
+
+    /// Whether the map spans all longitudes (and wraps around).
+    pub fn wraps(&self) -> bool {
+        self.wraps
+    }
+
+    /// The latitude of row `r`'s centres [rad].
+    pub fn row_lat(&self, r: usize) -> f64 {
+        self.lat_top - (r as f64 + 0.5) * self.dlat
+    }
+
+    /// Another map on the same grid, with these values (no encoding applied).
+    pub fn with_values(&self, values: Vec<f64>) -> Result<Map, MapError> {
+        let d = Encoding::default();
+        let west = self.lon0.to_degrees();
+        let north = self.lat_top.to_degrees();
+        let enc = Encoding {
+            lon_limits_deg: [west, west + (self.dlon * self.width as f64).to_degrees()],
+            lat_limits_deg: [north - (self.dlat * self.height as f64).to_degrees(), north],
+            ..d
+        };
+        Map::from_values(&self.file, self.width, self.height, values, &enc)
+    }
+
     /// The area-weighted mean value.
     pub fn mean(&self) -> f64 {
         let (mut s, mut a) = (0.0, 0.0);

@@ -515,11 +515,25 @@ impl Validator<'_> {
                 })
             }
         };
+        let relief = match &b.dem_map {
+            None => None,
+            Some(m) => {
+                let heights = self.map("body.dem_map", m)?;
+                Some(crate::body::Relief::new(heights, radius_m).or_else(|e| {
+                    self.err(
+                        "body.dem_map",
+                        m.path.as_str(),
+                        &format!("a usable DEM ({e})"),
+                    )
+                })?)
+            }
+        };
         Ok(Body {
             name: b.name.clone(),
             shape: Shape::Sphere(Sphere { radius_m }),
             brdf,
             albedo_map,
+            relief,
         })
     }
 

@@ -51,6 +51,9 @@ pub struct RawBody {
     /// `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling_factor]`.
     pub hapke: Option<Vec<f64>>,
     pub albedo_map: Option<RawMap>,
+    /// Heights above `radius_m` (after the encoding: metres; the shared LOLA DEM is in km,
+    /// so `scale = 1000`).
+    pub dem_map: Option<RawMap>,
 }
 
 /// A texture map and its encoding (`docs/scene.md`, `body::maps::Encoding`).

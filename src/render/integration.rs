@@ -244,6 +244,7 @@ fn linear(a: DVec3, lo: &LonMoments, la: &LatMoments) -> f64 {
 #[inline(always)]
 fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let (p, n) = view.shape.surface(dir);
+    let n = view.shading_normal(dir, n);
     let to_c = view.cam_csf - p;
     let to_s = view.sun_csf - p;
     let (dc2, ds2) = (to_c.length_squared(), to_s.length_squared());
@@ -304,6 +305,13 @@ pub fn integrate(
     pl: &mut Vec<f64>,
 ) -> f64 {
     let clip = view.shape.lit_visible(view.sun_csf, view.cam_csf);
+    // The closed forms integrate the shape's own normals: with relief, the trapezoidal rule.
+    let method = match (method, view.relief) {
+        (Method::Exact(_), Some(_)) => Method::Trapezoidal {
+            points_per_deg: 5.0,
+        },
+        _ => method,
+    };
     let nodes = Nodes::new(boundary_nodes.max(1));
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
     let r = view.shape.bounding_radius_m();

@@ -275,6 +275,7 @@ fn render_in_pool(
     let view = View::new(
         intr,
         &scene.body.shape,
+        scene.body.relief.as_ref(),
         pose,
         settings.supersampling,
         settings.fov,

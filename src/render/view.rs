@@ -2,7 +2,7 @@
 //! positions in it, and `camera_from_csf`. Every later step works in CSF.
 
 use super::settings::FovShape;
-use crate::body::Shape;
+use crate::body::{Relief, Shape};
 use crate::camera::Intrinsics;
 use crate::geometry::CsfFrame;
 use crate::scene::Pose;
@@ -11,7 +11,10 @@ use glam::{DMat3, DVec3};
 pub struct View<'a> {
     pub intrinsics: &'a Intrinsics,
     pub shape: &'a Shape,
+    /// DEM slopes that tilt the normals the BRDF sees, if any.
+    pub relief: Option<&'a Relief>,
     pub csf: CsfFrame,
+    pub csf_from_body: DMat3,
     pub camera_from_csf: DMat3,
     /// Camera position in CSF [m].
     pub cam_csf: DVec3,
@@ -30,6 +33,7 @@ impl<'a> View<'a> {
     pub fn new(
         intrinsics: &'a Intrinsics,
         shape: &'a Shape,
+        relief: Option<&'a Relief>,
         pose: &Pose,
         m: u32,
         fov: FovShape,
@@ -42,6 +46,8 @@ impl<'a> View<'a> {
         View {
             intrinsics,
             shape,
+            relief,
+            csf_from_body,
             csf,
             camera_from_csf: camera_from_body * csf.body_from_csf,
             cam_csf: csf_from_body * pose.camera_position_m,
@@ -50,6 +56,16 @@ impl<'a> View<'a> {
             fov,
             cone_cos: (half + 1e-3).min(std::f64::consts::PI).cos(),
             margin_px: 4.0 * m as f64,
+        }
+    }
+
+    /// The normal the BRDF sees at the surface over CSF unit direction `dir`: the shape's,
+    /// tilted by the relief when there is one.
+    #[inline]
+    pub fn shading_normal(&self, dir: DVec3, n: DVec3) -> DVec3 {
+        match self.relief {
+            Some(r) => self.csf_from_body * r.normal(self.csf.body_from_csf * dir),
+            None => n,
         }
     }
 

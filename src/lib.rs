@@ -10,7 +10,7 @@
 //! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates, ray-sphere |
 //! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45) |
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
-//! | [`body`] | the body's shape (sphere now; ellipsoids and meshes later), reflectance and texture maps (albedo; TIFF, bilinear, seamless) |
+//! | [`body`] | the body's shape (sphere now; ellipsoids and meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo and DEM relief (normals) |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
 //! | [`detector`] | (P/L) -> signal -> electrons with noises -> DN (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |

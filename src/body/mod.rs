@@ -88,6 +88,13 @@ pub struct Relief {
     pub heights_m: std::sync::Arc<maps::Map>,
     slope_east: std::sync::Arc<maps::Map>,
     slope_north: std::sync::Arc<maps::Map>,
+    radius_m: f64,
+    /// The highest point above `radius_m` [m].
+    top_m: f64,
+    /// The steepest slope anywhere (tan of its angle).
+    max_slope: f64,
+    /// Ray-marching step [m]: a quarter texel in latitude.
+    step_m: f64,
 }
 
 impl Relief {
@@ -116,12 +123,56 @@ impl Relief {
                 north.push((v(rn, c) - v(rs, c)) / metres_n);
             }
         }
+        let max_slope = east
+            .iter()
+            .zip(&north)
+            .map(|(e, n)| (e * e + n * n).sqrt())
+            .fold(0.0, f64::max);
+        let top_m = heights_m.values.iter().fold(f32::MIN, |a, &v| a.max(v)) as f64;
         let slope = |values| heights_m.with_values(values).map(std::sync::Arc::new);
         Ok(Relief {
             slope_east: slope(east)?,
             slope_north: slope(north)?,
             heights_m: std::sync::Arc::new(heights_m),
+            radius_m,
+            top_m,
+            max_slope,
+            step_m: 0.25 * radius_m * dlat,
         })
+    }
+
+    /// Whether the terrain hides direction `toward` (unit, body frame) from the surface point
+    /// over the unit direction `up` (Eq. 33: the ray from the point meets the surface). Only
+    /// rays that rise more slowly than the steepest slope are marched (a quarter texel a step,
+    /// until the ray is above the highest point); the others cannot be blocked.
+    pub fn occluded(&self, up: DVec3, toward: DVec3) -> bool {
+        let rise = toward.dot(up);
+        if rise <= 0.0 {
+            return false; // below the horizontal: the BRDF's cosine is already <= 0
+        }
+        let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
+        if rise >= self.max_slope * horizontal {
+            return false;
+        }
+        let (lon, lat) = crate::geometry::lon_lat(up);
+        let h0 = self.heights_m.sample(lon, lat).unwrap_or(0.0);
+        let start = up * (self.radius_m + h0);
+        let ceiling = self.radius_m + self.top_m;
+        let mut t = self.step_m;
+        loop {
+            let q = start + toward * t;
+            let r = q.length();
+            if r > ceiling {
+                return false;
+            }
+            let (lon, lat) = crate::geometry::lon_lat(q / r);
+            if let Some(h) = self.heights_m.sample(lon, lat)
+                && r < self.radius_m + h
+            {
+                return true;
+            }
+            t += self.step_m;
+        }
     }
 
     /// The surface normal (body frame) over the unit direction `up` from the centre.
@@ -162,5 +213,63 @@ impl AlbedoMap {
         self.map
             .sample(lon, lat)
             .map_or(fallback, |v| v * self.scale_per_value)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use maps::{Encoding, Map};
+
+    /// A 1000 m wall along the meridian at longitude 0 on a regional DEM (0.01 deg = 303 m
+    /// texels) and the Sun 10 deg above the eastern horizon: the wall's shadow on flat ground
+    /// west of it is `H / tan(10 deg) = 5671 m` long. The marched shadow ends there to within
+    /// one DEM cell. (Measured: 5382 m. Two known effects shorten it: the surface curving
+    /// away, 9 m of drop over 5.6 km, about 53 m of shadow; and bilinear interpolation, which
+    /// reaches the wall's full height only at the first texel centre, half a cell east of the
+    /// face.)
+    #[test]
+    fn a_wall_casts_the_shadow_length_of_its_height_over_the_sun_elevation() {
+        let radius = 1_737_400.0;
+        let (n, span_deg) = (400usize, 4.0);
+        let cell_deg = span_deg / n as f64;
+        let wall_m = 1000.0;
+        let values = (0..n * n)
+            .map(|i| {
+                let lon = -2.0 + ((i % n) as f64 + 0.5) * cell_deg;
+                if (0.0..0.05).contains(&lon) {
+                    wall_m
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let enc = Encoding {
+            lon_limits_deg: [-2.0, 2.0],
+            lat_limits_deg: [-2.0, 2.0],
+            ..Default::default()
+        };
+        let dem = Map::from_values(std::path::Path::new("wall"), n, n, values, &enc).unwrap();
+        let relief = Relief::new(dem, radius).unwrap();
+        let elevation = 10f64.to_radians();
+        let cell_m = radius * cell_deg.to_radians();
+        // Walk west from the wall's foot; the shadow's end is the last shadowed point.
+        let mut end_m = 0.0;
+        for k in 1..200 {
+            let x_m = k as f64 * cell_m / 4.0;
+            let lon = -x_m / radius;
+            let up = crate::geometry::unit_from_lon_lat(lon, 0.0);
+            let east = DVec3::Z.cross(up).normalize();
+            let sun = east * elevation.cos() + up * elevation.sin();
+            if relief.occluded(up, sun) {
+                end_m = x_m;
+            }
+        }
+        let want = wall_m / elevation.tan();
+        eprintln!("shadow length {end_m:.0} m, analytic {want:.0} m, cell {cell_m:.0} m");
+        assert!((end_m - want).abs() <= cell_m, "{end_m} vs {want}");
+        // Sun higher than the steepest slope: nothing is marched, nothing is shadowed.
+        let up = crate::geometry::unit_from_lon_lat(-0.001, 0.0);
+        assert!(!relief.occluded(up, up));
     }
 }

@@ -917,6 +917,9 @@ impl Validator<'_> {
             s.bounding_tolerance_rad =
                 self.in_range("render.bounding_tolerance_rad", t, 1e-12, 1e-2)?;
         }
+        if let Some(v) = r.self_shadowing {
+            s.self_shadowing = v;
+        }
         if let Some(d) = r.depth {
             s.depth = d;
         }

@@ -183,6 +183,7 @@ pub struct RawRender {
     pub threads: Option<i64>,
     pub bounding_tolerance_rad: Option<f64>,
     pub depth: Option<bool>,
+    pub self_shadowing: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]

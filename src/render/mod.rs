@@ -276,6 +276,7 @@ fn render_in_pool(
         intr,
         &scene.body.shape,
         scene.body.relief.as_ref(),
+        settings.self_shadowing,
         pose,
         settings.supersampling,
         settings.fov,

@@ -84,6 +84,11 @@ pub struct Settings {
     pub bounding_tolerance_rad: f64,
     /// Also ray-cast the range to the surface per pixel.
     pub depth: bool,
+    /// With a DEM: march rays over it towards the Sun and towards the camera (Sec. 4.5, item
+    /// 4; Eq. 33) from the points where the terrain could block them (the terminator and
+    /// limb bands: where the ray rises more slowly than the DEM's steepest slope). Off by
+    /// default: it costs about a micro-second per such point.
+    pub self_shadowing: bool,
 }
 
 impl Default for Settings {
@@ -110,6 +115,7 @@ impl Default for Settings {
             threads: 0,
             bounding_tolerance_rad: 1e-7,
             depth: false,
+            self_shadowing: false,
         }
     }
 }

@@ -13,6 +13,8 @@ pub struct View<'a> {
     pub shape: &'a Shape,
     /// DEM slopes that tilt the normals the BRDF sees, if any.
     pub relief: Option<&'a Relief>,
+    /// March rays over the relief towards the Sun and the camera.
+    pub shadows: bool,
     pub csf: CsfFrame,
     pub csf_from_body: DMat3,
     pub camera_from_csf: DMat3,
@@ -34,6 +36,7 @@ impl<'a> View<'a> {
         intrinsics: &'a Intrinsics,
         shape: &'a Shape,
         relief: Option<&'a Relief>,
+        self_shadowing: bool,
         pose: &Pose,
         m: u32,
         fov: FovShape,
@@ -47,6 +50,7 @@ impl<'a> View<'a> {
             intrinsics,
             shape,
             relief,
+            shadows: self_shadowing && relief.is_some(),
             csf_from_body,
             csf,
             camera_from_csf: camera_from_body * csf.body_from_csf,
@@ -66,6 +70,23 @@ impl<'a> View<'a> {
         match self.relief {
             Some(r) => self.csf_from_body * r.normal(self.csf.body_from_csf * dir),
             None => n,
+        }
+    }
+
+    /// Whether the relief hides the Sun (first) and the camera (second) from the surface
+    /// point `p` over CSF unit direction `dir` (always visible without self-shadowing).
+    #[inline]
+    pub fn shadowed(&self, dir: DVec3, p: DVec3) -> (bool, bool) {
+        match (self.shadows, self.relief) {
+            (true, Some(r)) => {
+                let up = self.csf.body_from_csf * dir;
+                let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
+                (
+                    r.occluded(up, to(self.sun_csf)),
+                    r.occluded(up, to(self.cam_csf)),
+                )
+            }
+            _ => (false, false),
         }
     }
 

@@ -21,6 +21,7 @@
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs |
+//! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
 //! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate`, `replay` |
 //!
@@ -65,5 +66,6 @@ pub mod radiometry;
 pub mod render;
 pub mod scene;
 pub mod server;
+pub mod stats;
 pub mod stimulator;
 pub mod trajectory;

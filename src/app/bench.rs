@@ -104,10 +104,9 @@ pub fn run(
     for v in stage_sum.values_mut() {
         *v = (v.as_f64().unwrap_or(0.0) / n.max(1) as f64).into();
     }
-    let mut sorted: Vec<f64> = times.iter().map(|t| t.0).collect();
-    sorted.sort_by(f64::total_cmp);
+    let mut ms: Vec<f64> = times.iter().map(|t| t.0).collect();
+    let [median, p95, max] = crate::stats::quantiles(&mut ms, [0.5, 0.95, 1.0]);
     points.sort_unstable();
-    let q = |p: f64| sorted[((sorted.len() - 1) as f64 * p).round() as usize];
     let slowest = times
         .iter()
         .fold((0.0, 0), |a, &t| if t.0 > a.0 { t } else { a });
@@ -116,11 +115,11 @@ pub fn run(
         frames: n,
         first_ms: times.first().map_or(0.0, |t| t.0),
         threads: renderer.threads(),
-        median_ms: q(0.5),
-        p95_ms: q(0.95),
-        max_ms: q(1.0),
-        fps_median: 1e3 / q(0.5),
-        fps_slowest: 1e3 / q(1.0),
+        median_ms: median,
+        p95_ms: p95,
+        max_ms: max,
+        fps_median: 1e3 / median,
+        fps_slowest: 1e3 / max,
         points_kept_median: points[points.len() / 2],
         points_kept_max: *points.last().unwrap_or(&0),
         mean_stage_ms: serde_json::Value::Object(stage_sum),
@@ -213,7 +212,8 @@ pub fn run_display(
         ]);
     }
     rows.remove(0); // the first pass builds pipelines and targets
-    let median = |k: usize| quantile(rows.iter().map(|r| r[k]).collect(), 0.5);
+    let column = |k: usize| rows.iter().map(|r| r[k]).collect::<Vec<f64>>();
+    let median = |k: usize| crate::stats::quantiles(&mut column(k), [0.5])[0];
     let names = [
         "feff",
         "resample",
@@ -238,7 +238,7 @@ pub fn run_display(
             _ => worse += 1,
         }
     }
-    let totals: Vec<f64> = rows.iter().map(|r| r[6]).collect();
+    let [p99_total, max_total] = crate::stats::quantiles(&mut column(6), [0.99, 1.0]);
     Ok(DisplayBenchReport {
         adapter: presenter.adapter(),
         screen_px: st.screen_px,
@@ -247,17 +247,10 @@ pub fn run_display(
         frames: rows.len(),
         table_max_code_error: presenter.table_error(),
         median_ms: serde_json::Value::Object(median_ms),
-        p99_total_ms: quantile(totals.clone(), 0.99),
-        max_total_ms: quantile(totals, 1.0),
+        p99_total_ms: p99_total,
+        max_total_ms: max_total,
         lsb_equal: equal,
         lsb_one: one,
         lsb_worse: worse,
     })
-}
-
-fn quantile(mut v: Vec<f64>, p: f64) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(((v.len().max(1) - 1) as f64 * p).round() as usize)
-        .copied()
-        .unwrap_or(0.0)
 }

@@ -281,17 +281,8 @@ impl Tally {
 }
 
 fn percentiles(mut v: Vec<f64>) -> Latency {
-    v.sort_by(f64::total_cmp);
-    let q = |p: f64| {
-        v.get(((v.len().max(1) - 1) as f64 * p).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
-    Latency {
-        p50: q(0.5),
-        p99: q(0.99),
-        max: q(1.0),
-    }
+    let [p50, p99, max] = crate::stats::quantiles(&mut v, [0.5, 0.99, 1.0]);
+    Latency { p50, p99, max }
 }
 
 /// Streams over TCP (`host:port`) or a serial line (`serial:PATH[@BAUD]`).

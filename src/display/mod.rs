@@ -113,17 +113,17 @@ impl DirectTable {
                     err = err.max((w[0] + s * (w[1] - w[0]) - exact).abs());
                 }
             }
-            if err <= MAX_TABLE_CODE_ERROR || n >= 16 * TABLE_ENTRIES {
-                if err > MAX_TABLE_CODE_ERROR {
-                    return Err(DisplayError::Table {
-                        got: err,
-                        entries: n,
-                        max_code_error: MAX_TABLE_CODE_ERROR,
-                    });
-                }
+            if err <= MAX_TABLE_CODE_ERROR {
                 return Ok(DirectTable {
                     codes: codes.iter().map(|&c| c as f32).collect(),
                     max_code_error: err,
+                });
+            }
+            if n >= 16 * TABLE_ENTRIES {
+                return Err(DisplayError::Table {
+                    got: err,
+                    entries: n,
+                    max_code_error: MAX_TABLE_CODE_ERROR,
                 });
             }
             n *= 2;
@@ -151,7 +151,7 @@ struct Input {
 }
 
 /// One target's view of the inputs: its own parameters (the view scale differs between the
-/// screen and a preview) and the bind group naming the current textures.
+/// screen and a preview) and the bind group naming the current buffers.
 pub(crate) struct Binding {
     params: wgpu::Buffer,
     group: wgpu::BindGroup,
@@ -187,7 +187,7 @@ pub struct Presenter {
     lut: Option<Lut>,
     table_error: f64,
     input: Option<Input>,
-    /// Bumped whenever the LUT or the input texture is replaced (bindings then rebuild).
+    /// Bumped whenever the LUT or the input buffer is replaced (bindings then rebuild).
     generation: u64,
     offscreen: Option<Offscreen>,
     scratch: Vec<f32>,
@@ -223,32 +223,14 @@ impl Presenter {
         .map_err(|e| DisplayError::Device(e.to_string()))?;
         let shader = device.create_shader_module(wgpu::include_wgsl!("lut.wgsl"));
         let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
-        let storage_entry = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: true },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
+        let storage = wgpu::BufferBindingType::Storage { read_only: true };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("lut"),
             entries: &[
-                storage_entry(0),
-                storage_entry(1),
-                storage_entry(3),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                buffer_entry(0, visibility, storage),
+                buffer_entry(1, visibility, storage),
+                buffer_entry(2, visibility, wgpu::BufferBindingType::Uniform),
+                buffer_entry(3, visibility, storage),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -258,16 +240,11 @@ impl Presenter {
         });
         let out_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("screen codes"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only: false },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            }],
+            entries: &[buffer_entry(
+                0,
+                wgpu::ShaderStages::COMPUTE,
+                wgpu::BufferBindingType::Storage { read_only: false },
+            )],
         });
         let compute_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("lut (off-screen)"),
@@ -279,12 +256,7 @@ impl Presenter {
             .iter()
             .map(|&r| (r as f32 + 0.5) / cells)
             .collect();
-        let noise = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("blue noise"),
-            size: (4 * thresholds.len()) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let noise = storage_buffer(&device, "blue noise", thresholds.len());
         queue.write_buffer(&noise, 0, bytemuck::cast_slice(&thresholds));
         Ok(Presenter {
             noise,
@@ -315,11 +287,6 @@ impl Presenter {
         format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
     }
 
-    /// The screen's DN depth [bit].
-    pub fn bits(&self) -> u32 {
-        self.bits
-    }
-
     /// The direct table's interpolation error for the uploaded curve [codes].
     pub fn table_error(&self) -> f64 {
         self.table_error
@@ -329,7 +296,7 @@ impl Presenter {
     pub fn set_inverse(&mut self, inverse: &Inverse) -> Result<(), DisplayError> {
         let table = DirectTable::build(inverse)?;
         let n = table.codes.len();
-        let buffer = self.storage("inverse calibration", n);
+        let buffer = storage_buffer(&self.device, "inverse calibration", n);
         self.queue
             .write_buffer(&buffer, 0, bytemuck::cast_slice(&table.codes));
         let (code_lo, code_hi) = inverse.codes();
@@ -365,7 +332,7 @@ impl Presenter {
         }
         let region = [region_px[0] as u32, region_px[1] as u32];
         if self.input.as_ref().is_none_or(|i| i.region_px != region) {
-            let buffer = self.storage("feff", want);
+            let buffer = storage_buffer(&self.device, "feff", want);
             self.input = Some(Input {
                 region_px: region,
                 buffer,
@@ -414,14 +381,7 @@ impl Presenter {
         {
             let words_per_row = screen[0].div_ceil(2);
             let size = (4 * words_per_row * screen[1]) as u64;
-            let buffer = |label, usage| {
-                self.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size,
-                    usage,
-                    mapped_at_creation: false,
-                })
-            };
+            let buffer = |label, usage| buffer(&self.device, label, size, usage);
             let codes = buffer(
                 "screen codes",
                 wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
@@ -690,16 +650,30 @@ impl Presenter {
         self.pipelines.push((key, pipeline));
         &self.pipelines.last().expect("pushed").1
     }
+}
 
-    /// A storage buffer of `n` f32 values, written by the queue.
-    fn storage(&self, label: &str, n: usize) -> wgpu::Buffer {
-        self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: (4 * n.max(1)) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        })
-    }
+/// A storage buffer of `n` f32 values, written by the queue.
+fn storage_buffer(device: &wgpu::Device, label: &str, n: usize) -> wgpu::Buffer {
+    buffer(
+        device,
+        label,
+        (4 * n.max(1)) as u64,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+    )
+}
+
+fn buffer(
+    device: &wgpu::Device,
+    label: &str,
+    size: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage,
+        mapped_at_creation: false,
+    })
 }
 
 /// The shader's `dither_kind` pipeline constant.
@@ -712,6 +686,24 @@ fn dither_constant(kind: u32) -> wgpu::PipelineCompilationOptions<'static> {
     wgpu::PipelineCompilationOptions {
         constants: &KINDS[kind.min(2) as usize],
         ..Default::default()
+    }
+}
+
+/// A bind-group-layout entry for a buffer.
+fn buffer_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+    ty: wgpu::BufferBindingType,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
     }
 }
 

@@ -234,19 +234,10 @@ impl Conn {
                     Ok(dropped) => {
                         for d in dropped {
                             self.shared.stats.poses_dropped.inc();
-                            d.reply.send(Message::Ack(protocol::AckMsg {
-                                frame_id: d.pose.frame_id,
-                                status: protocol::AckStatus::Dropped,
-                                received_ns: self.shared.ns(d.received),
-                                render_start_ns: 0,
-                                render_end_ns: 0,
-                                presented_ns: 0,
-                                render_ms: 0.0,
-                                clipped_black: 0,
-                                clipped_below_dark: 0,
-                                clipped_above_max: 0,
-                                calibration_id: String::new(),
-                            }));
+                            d.reply.send(Message::Ack(protocol::AckMsg::dropped(
+                                d.pose.frame_id,
+                                self.shared.ns(d.received),
+                            )));
                         }
                     }
                     Err(e) => self.error(e),

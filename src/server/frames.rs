@@ -248,9 +248,7 @@ impl FrameThread {
             .clone();
         self.maker = maker;
         if let Some(h) = self.held.take() {
-            self.shared.stats.poses_dropped.inc();
-            let ack = self.ack(&h, AckStatus::Dropped, None);
-            h.job.reply.send(Message::Ack(ack));
+            self.drop_held(h);
         }
         if let Err(e) = self.replay(curve) {
             tracing::error!("the new scene's calibration could not be uploaded: {e}");
@@ -258,18 +256,33 @@ impl FrameThread {
         tracing::info!(scene = %self.shared.scene().label, "scene switched");
     }
 
+    /// A held frame that will never be presented: counted and acked as dropped.
+    fn drop_held(&self, h: Held) {
+        self.shared.stats.poses_dropped.inc();
+        let ack = self.ack(&h, AckStatus::Dropped, None);
+        h.job.reply.send(Message::Ack(ack));
+    }
+
+    /// Replays `curve` in the stimulator and the presenter (the stimulator's inverse is the
+    /// one uploaded); if the presenter refuses it, the stimulator goes back to its old curve.
     fn replay(&mut self, curve: Arc<Curve>) -> Result<(), String> {
-        let st = self.maker.stimulator().expect("has a stimulator");
-        let inverse = curve.inverse(0, st.config().levels());
-        match &mut self.present {
-            Present::Gpu(p) => p.set_inverse(&inverse).map_err(|e| e.to_string())?,
-            Present::Window { tx, .. } => tx
-                .send(DisplayEvent::Curve(Box::new(inverse)))
-                .map_err(|e| e.to_string())?,
-            Present::Cpu => {}
-        }
         let (id, sha) = (curve.id.clone(), curve.sha256.clone());
-        self.maker.replay(curve);
+        let old = self
+            .maker
+            .replay(curve)
+            .expect("the daemon has a stimulator");
+        let inverse = self.maker.stimulator().expect("has one").inverse();
+        let uploaded = match &mut self.present {
+            Present::Gpu(p) => p.set_inverse(inverse).map_err(|e| e.to_string()),
+            Present::Window { tx, .. } => tx
+                .send(DisplayEvent::Curve(Box::new(inverse.clone())))
+                .map_err(|e| e.to_string()),
+            Present::Cpu => Ok(()),
+        };
+        if let Err(e) = uploaded {
+            self.maker.replay(old);
+            return Err(e);
+        }
         *self
             .shared
             .calibration
@@ -310,9 +323,7 @@ impl FrameThread {
             let ack = self.ack(&held, AckStatus::Held, None);
             held.job.reply.send(Message::Ack(ack));
             if let Some(old) = self.held.replace(held) {
-                self.shared.stats.poses_dropped.inc();
-                let ack = self.ack(&old, AckStatus::Dropped, None);
-                old.job.reply.send(Message::Ack(ack));
+                self.drop_held(old);
             }
             return;
         }
@@ -358,7 +369,6 @@ impl FrameThread {
             frame_id,
             exposure_s: h.job.exposure_s,
             screen_px: config.screen_px,
-            bits: config.screen_bits,
             dn: h.made.stimulator.take().expect("has one").screen_dn,
         });
         *self.shared.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(latest.clone());
@@ -370,12 +380,11 @@ impl FrameThread {
     fn present(&mut self, made: &mut MadeFrame) -> Result<(), String> {
         let st = self.maker.stimulator().expect("has a stimulator");
         let region = st.resampler().region_px();
-        let config = st.config().clone();
         match &mut self.present {
             Present::Gpu(p) => {
                 let f = made.stimulator.as_mut().expect("has a stimulator");
                 let mut dn = std::mem::take(&mut f.screen_dn);
-                p.draw_offscreen(&config, region, &f.region_feff_w_m2, &mut dn)
+                p.draw_offscreen(st.config(), region, &f.region_feff_w_m2, &mut dn)
                     .map_err(|e| e.to_string())?;
                 f.screen_dn = dn;
             }
@@ -420,16 +429,12 @@ impl FrameThread {
 
     fn ack(&self, h: &Held, status: AckStatus, presented: Option<Instant>) -> AckMsg {
         let ns = |t: Instant| self.shared.ns(t);
-        let clips = h
+        // The clip counts and the curve of the frame itself (a held frame may predate a replay).
+        let (clips, calibration_id) = h
             .made
             .stimulator
             .as_ref()
-            .map(|s| s.clips)
-            .unwrap_or_default();
-        let calibration_id = self
-            .maker
-            .stimulator()
-            .map(|s| s.curve().id.clone())
+            .map(|s| (s.clips, s.calibration_id.clone()))
             .unwrap_or_default();
         AckMsg {
             frame_id: h.job.pose.frame_id,

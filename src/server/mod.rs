@@ -105,7 +105,6 @@ pub struct ScreenImage {
     pub frame_id: u64,
     pub exposure_s: Option<f64>,
     pub screen_px: [usize; 2],
-    pub bits: u32,
     pub dn: Vec<u16>,
 }
 
@@ -232,13 +231,7 @@ impl Stats {
             / 5.0;
         let mut l: Vec<f64> = r.iter().map(|x| x.1).collect();
         let last = l[l.len().saturating_sub(200)..].to_vec();
-        l.sort_by(f64::total_cmp);
-        let q = |p: f64| {
-            l.get(((l.len().max(1) - 1) as f64 * p).round() as usize)
-                .copied()
-                .unwrap_or(0.0)
-        };
-        (fps, [q(0.5), q(0.99), q(1.0)], last)
+        (fps, crate::stats::quantiles(&mut l, [0.5, 0.99, 1.0]), last)
     }
 }
 

@@ -153,6 +153,25 @@ pub struct AckMsg {
     pub calibration_id: String,
 }
 
+impl AckMsg {
+    /// The ack of a pose replaced by a newer one before it was rendered.
+    pub fn dropped(frame_id: u64, received_ns: u64) -> AckMsg {
+        AckMsg {
+            frame_id,
+            status: AckStatus::Dropped,
+            received_ns,
+            render_start_ns: 0,
+            render_end_ns: 0,
+            presented_ns: 0,
+            render_ms: 0.0,
+            clipped_black: 0,
+            clipped_below_dark: 0,
+            clipped_above_max: 0,
+            calibration_id: String::new(),
+        }
+    }
+}
+
 /// Every message of the protocol, in both directions.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]

@@ -289,7 +289,7 @@ fn serve(
         ),
     };
     let cfg = config::parse(&text, &label)?;
-    let sha = server::sha256_hex(text.as_bytes());
+    let sha = optistim::io::sha256_hex(text.as_bytes());
     let presenter = match present {
         "auto" => PresenterChoice::Auto,
         "offscreen" => PresenterChoice::Offscreen,

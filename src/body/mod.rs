@@ -110,14 +110,14 @@ impl Relief {
             let lat = heights_m.row_lat(r);
             let (rn, rs) = (r.saturating_sub(1), (r + 1).min(h - 1));
             for c in 0..w {
-                let (cw, ce) = if wraps {
-                    ((c + w - 1) % w, (c + 1) % w)
-                } else {
-                    (c.saturating_sub(1), (c + 1).min(w - 1))
-                };
                 // Two texels across, one at the edge of a regional map.
-                let texels = if wraps { 2.0 } else { (ce - cw).max(1) as f64 };
-                let metres_e = radius_m * lat.cos().max(1e-6) * texels * dlon;
+                let (cw, ce, texels) = if wraps {
+                    ((c + w - 1) % w, (c + 1) % w, 2)
+                } else {
+                    let (cw, ce) = (c.saturating_sub(1), (c + 1).min(w - 1));
+                    (cw, ce, ce - cw)
+                };
+                let metres_e = radius_m * lat.cos().max(1e-6) * texels as f64 * dlon;
                 east.push((v(r, ce) - v(r, cw)) / metres_e);
                 let metres_n = radius_m * (rs - rn).max(1) as f64 * dlat;
                 north.push((v(rn, c) - v(rs, c)) / metres_n);

@@ -67,16 +67,22 @@ pub enum DisplayEvent {
     Quit,
 }
 
+/// Which window: the stimulator's fullscreen one or the operator's preview.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    Fullscreen,
+    Preview,
+}
+
 /// A frame that reached the screen.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Presented {
     pub frame_id: u64,
-    /// The window it went to ("fullscreen" or "preview").
-    pub window: &'static str,
+    /// The window it went to.
+    pub window: Role,
     /// The monitor (name, size) of the fullscreen window.
     pub monitor: String,
-    #[serde(skip)]
-    pub at: Option<Instant>,
     pub timings_ms: PresentTimings,
 }
 
@@ -102,7 +108,7 @@ pub fn display_available() -> bool {
 }
 
 struct WinTarget {
-    role: &'static str,
+    role: Role,
     window: Arc<Window>,
     surface: wgpu::Surface<'static>,
     config: wgpu::SurfaceConfiguration,
@@ -204,7 +210,7 @@ impl<F: FnMut(Presented)> App<F> {
                 .with_inner_size(size)
                 .with_position(monitor.position())
                 .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor.clone()))));
-            self.add(event_loop, "fullscreen", attributes)?;
+            self.add(event_loop, Role::Fullscreen, attributes)?;
         }
         if self.options.preview {
             let [w, h] = self.stimulator.screen_px.map(|x| x as f64);
@@ -215,7 +221,7 @@ impl<F: FnMut(Presented)> App<F> {
                     (w * scale).round() as u32,
                     (h * scale).round() as u32,
                 ));
-            self.add(event_loop, "preview", attributes)?;
+            self.add(event_loop, Role::Preview, attributes)?;
         }
         Ok(())
     }
@@ -223,7 +229,7 @@ impl<F: FnMut(Presented)> App<F> {
     fn add(
         &mut self,
         event_loop: &ActiveEventLoop,
-        role: &'static str,
+        role: Role,
         attributes: winit::window::WindowAttributes,
     ) -> Result<(), DisplayError> {
         let window = Arc::new(
@@ -241,7 +247,7 @@ impl<F: FnMut(Presented)> App<F> {
         // The stimulator's screen needs its DN depth exactly; the operator's preview may
         // show a 10-bit screen at 8 bit.
         let wanted: &[wgpu::TextureFormat] = match (bits > 8, role) {
-            (true, "fullscreen") => &[wgpu::TextureFormat::Rgb10a2Unorm],
+            (true, Role::Fullscreen) => &[wgpu::TextureFormat::Rgb10a2Unorm],
             (true, _) => &[
                 wgpu::TextureFormat::Rgb10a2Unorm,
                 wgpu::TextureFormat::Bgra8Unorm,
@@ -273,7 +279,7 @@ impl<F: FnMut(Presented)> App<F> {
         config.present_mode = wgpu::PresentMode::Fifo; // vsync
         surface.configure(&self.presenter.device, &config);
         tracing::info!(
-            role,
+            ?role,
             format = ?format,
             width = config.width,
             height = config.height,
@@ -305,14 +311,14 @@ impl<F: FnMut(Presented)> App<F> {
                 }
                 wgpu::CurrentSurfaceTexture::Outdated if !retried => {
                     retried = true;
-                    tracing::info!(role = target.role, "surface outdated: reconfigured");
+                    tracing::info!(role = ?target.role, "surface outdated: reconfigured");
                     target
                         .surface
                         .configure(&self.presenter.device, &target.config);
                 }
                 wgpu::CurrentSurfaceTexture::Lost if !retried => {
                     retried = true;
-                    tracing::info!(role = target.role, "surface lost: recreated");
+                    tracing::info!(role = ?target.role, "surface lost: recreated");
                     target.surface = self
                         .presenter
                         .instance
@@ -337,7 +343,7 @@ impl<F: FnMut(Presented)> App<F> {
         let target_px = [target.config.width, target.config.height];
         let (w, h) = (target_px[0] as f32, target_px[1] as f32);
         let [sw, sh] = self.stimulator.screen_px.map(|x| x as f32);
-        let scale = if target.role == "fullscreen" {
+        let scale = if target.role == Role::Fullscreen {
             [1.0, 1.0]
         } else {
             let s = (sw / w).max(sh / h);
@@ -378,7 +384,6 @@ impl<F: FnMut(Presented)> App<F> {
                 frame_id,
                 window: self.targets[i].role,
                 monitor: self.monitor.clone(),
-                at: Some(Instant::now()),
                 timings_ms: t,
             });
         }
@@ -441,7 +446,7 @@ impl<F: FnMut(Presented)> ApplicationHandler<DisplayEvent> for App<F> {
         };
         match event {
             WindowEvent::CloseRequested => {
-                if self.targets[i].role == "fullscreen" || self.targets.len() == 1 {
+                if self.targets[i].role == Role::Fullscreen || self.targets.len() == 1 {
                     event_loop.exit();
                 } else {
                     self.targets.remove(i);
@@ -454,7 +459,7 @@ impl<F: FnMut(Presented)> ApplicationHandler<DisplayEvent> for App<F> {
                 target
                     .surface
                     .configure(&self.presenter.device, &target.config);
-                tracing::debug!(role = target.role, ?size, "surface reconfigured");
+                tracing::debug!(role = ?target.role, ?size, "surface reconfigured");
                 target.window.request_redraw();
             }
             WindowEvent::RedrawRequested => {

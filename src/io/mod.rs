@@ -1,5 +1,5 @@
 //! Output files: FITS images (hand-written writer, see `docs/dependencies.md`) and PNG (the
-//! `png` crate).
+//! `png` crate), and the SHA-256 content hashes that name curves and configurations.
 
 pub mod fits;
 
@@ -59,4 +59,11 @@ pub fn encode_png_gray(
     w.write_image_data(&data)?;
     w.finish()?;
     Ok(out)
+}
+
+/// The SHA-256 of `bytes`, in hex: the content hash that names calibration curves and
+/// configurations in reports.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    format!("{:x}", sha2::Sha256::digest(bytes))
 }

@@ -410,7 +410,10 @@ impl FrameThread {
                 let shown = loop {
                     let left = deadline.saturating_duration_since(Instant::now());
                     match presented.recv_timeout(left) {
-                        Ok(Ok(p)) if p.frame_id == made.frame_id && p.window == "fullscreen" => {
+                        Ok(Ok(p))
+                            if p.frame_id == made.frame_id
+                                && p.window == window::Role::Fullscreen =>
+                        {
                             break Ok(());
                         }
                         Ok(Ok(_)) => continue,

@@ -154,10 +154,12 @@ async fn put_calibration(State(s): State<Arc<Shared>>, body: Bytes) -> Response 
         .as_ref()
         .map(|st| st.interp)
         .unwrap_or_default();
-    let sha = super::sha256_hex(&body);
-    let id = format!("uploaded-{}", &sha[..12]);
-    let curve = match Curve::parse(&body, &id, "PUT /calibration", interp) {
-        Ok(c) => Arc::new(c),
+    let curve = match Curve::parse(&body, "uploaded", "PUT /calibration", interp) {
+        // Named by its content hash.
+        Ok(mut c) => {
+            c.id = format!("uploaded-{}", &c.sha256[..12]);
+            Arc::new(c)
+        }
         Err(e) => {
             return (
                 StatusCode::UNPROCESSABLE_ENTITY,

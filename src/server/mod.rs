@@ -337,7 +337,7 @@ impl Shared {
         let maker = FrameMaker::new(&config).map_err(|e| format!("scene {path}: {e}"))?;
         let state = SceneState {
             label: path.to_string(),
-            sha256: sha256_hex(text.as_bytes()),
+            sha256: crate::io::sha256_hex(text.as_bytes()),
             camera: maker.camera().cloned(),
             config,
         };
@@ -556,13 +556,4 @@ impl Drop for Server {
             self.stop_now();
         }
     }
-}
-
-/// The SHA-256 of `bytes`, in hex.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::Digest;
-    sha2::Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
 }

@@ -24,7 +24,6 @@
 //! F_eff -> DN is unique. Each curve has an id (the file stem) and a SHA-256 of its content, which
 //! every frame reports.
 
-use sha2::{Digest, Sha256};
 use std::path::Path;
 
 /// Fewest measured points a curve may have.
@@ -215,7 +214,7 @@ impl Curve {
             .collect();
         Ok(Curve {
             id: id.to_string(),
-            sha256: format!("{:x}", Sha256::digest(bytes)),
+            sha256: crate::io::sha256_hex(bytes),
             provenance: prov,
             interp,
             dn_full_scale: full_scale,

@@ -254,30 +254,29 @@ fn splat_peel(
     // Peel off one pixel column at a time, then one pixel row at a time from each column.
     let mut rest = quad;
     for i in i0..=i1 {
-        let col = if i < i1 {
-            let (col, r) = split(&rest, 0, (i + 1) as f64);
-            rest = r;
-            col
-        } else {
-            rest
-        };
+        let col = peel(&mut rest, 0, i + 1, i == i1);
         if col.1 < 3 {
             continue;
         }
         let mut rest_col = col;
         for j in j0..=j1 {
-            let cell = if j < j1 {
-                let (cell, r) = split(&rest_col, 1, (j + 1) as f64);
-                rest_col = r;
-                cell
-            } else {
-                rest_col
-            };
+            let cell = peel(&mut rest_col, 1, j + 1, j == j1);
             if cell.1 >= 3 {
                 acc.add(i, j, frag(&cell));
             }
         }
     }
+}
+
+/// The part of `rest` below the cell edge `edge` along `axis` (all of it for the last cell);
+/// `rest` keeps what lies beyond.
+fn peel(rest: &mut Poly, axis: usize, edge: i64, last: bool) -> Poly {
+    if last {
+        return *rest;
+    }
+    let (part, beyond) = split(rest, axis, edge as f64);
+    *rest = beyond;
+    part
 }
 
 /// Adds one directed edge `p -> q` (local pixel coordinates, inside `nx x ny` pixels) to the

@@ -317,7 +317,7 @@ fn serve(
         serde_json::json!({
             "listening": daemon.tcp_addr.to_string(),
             "http": format!("http://{}", daemon.http_addr),
-            "presenter": daemon.presenter,
+            "presenter": daemon.presenter(),
             "config": label,
         })
     );

@@ -43,7 +43,7 @@ fn closed_loop_over_tcp_lockstep_then_free_running() {
         None,
         Some(record.clone()),
     );
-    eprintln!("presenter: {}", daemon.presenter);
+    eprintln!("presenter: {}", daemon.presenter());
     let poses = poses(200);
 
     // A subscriber, reading as frames come, receives the simulated camera's image of every

@@ -68,10 +68,6 @@ impl Hapke {
         }
     }
 
-    pub fn params(&self) -> &HapkeParams {
-        &self.p
-    }
-
     /// The porosity factor `K` (Hapke 2008, Eq. 14), 1 at zero filling factor.
     pub fn porosity_factor(&self) -> f64 {
         self.k

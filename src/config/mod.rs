@@ -14,6 +14,7 @@ use crate::detector::noise::{DarkCurrent, Noise, Prnu, Readout, Shot};
 use crate::geometry::{body_from_camera_wxyz, look_at};
 use crate::radiometry::{AU, SpectralTable, SunSpectrum};
 use crate::render::gridding::Gridding;
+use crate::render::integration::Method;
 use crate::render::reconstruction::Reconstruction;
 use crate::render::{FovShape, Integration, PointBudget, Sampling, Settings, Split};
 use crate::scene::{Camera, Pose, Scene};
@@ -164,7 +165,7 @@ impl Validator<'_> {
         }
         let (camera, power_band_m) = self.camera(&raw.camera)?;
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
-        let settings = self.render(&raw.render, &body.brdf)?;
+        let settings = self.render(&raw.render, &body)?;
         let stimulator = match &raw.stimulator {
             Some(st) => Some(self.stimulator(st, &camera.intrinsics)?),
             None => None,
@@ -750,7 +751,7 @@ impl Validator<'_> {
         })
     }
 
-    fn render(&self, r: &RawRender, brdf: &Brdf) -> R<Settings> {
+    fn render(&self, r: &RawRender, body: &Body) -> R<Settings> {
         let mut s = match &r.preset {
             Some(p) => {
                 Settings::preset(self.choice("render.preset", p, &["default", "high_accuracy"])?)
@@ -820,8 +821,8 @@ impl Validator<'_> {
                     points_per_deg: ppd,
                 },
                 "exact" => {
-                    if brdf.exact_form().is_none() {
-                        return self.err("render.integration", v, &format!("\"exact\" has no closed form for the {} BRDF: use auto, trapezoidal or pointwise", brdf.name()));
+                    if let Err(e) = Method::resolve(Integration::Exact, body) {
+                        return self.err("render.integration", v, &e.to_string());
                     }
                     Integration::Exact
                 }

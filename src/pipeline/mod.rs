@@ -73,10 +73,6 @@ impl FrameMaker {
         })
     }
 
-    pub fn config(&self) -> &Config {
-        &self.config
-    }
-
     pub fn stimulator(&self) -> Option<&Stimulator> {
         self.stimulator.as_ref()
     }

@@ -31,8 +31,8 @@ use super::pruning::{BOUNDARY, PRUNED};
 use super::sampling::GridTrig;
 use super::settings::Integration;
 use super::view::View;
-use crate::body::AlbedoMap;
 use crate::body::LitVisible;
+use crate::body::{AlbedoMap, Body};
 use crate::brdf::{Brdf, ExactForm, Local};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -131,23 +131,31 @@ pub enum Method {
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[error(
-    "render.integration = \"exact\" has no closed form for the {brdf} BRDF: use \"auto\", \"trapezoidal\" or \"pointwise\""
+    "render.integration = \"exact\" has no closed form {reason}: use \"auto\", \"trapezoidal\" or \"pointwise\""
 )]
 pub struct NoClosedForm {
-    pub brdf: &'static str,
+    pub reason: String,
 }
 
 impl Method {
-    pub fn resolve(integration: Integration, brdf: &Brdf) -> Result<Method, NoClosedForm> {
+    /// The integration method for `body`. The closed forms need the BRDF to have one and the
+    /// normals to be the shape's own (no DEM tilting them).
+    pub fn resolve(integration: Integration, body: &Body) -> Result<Method, NoClosedForm> {
+        let form = match (&body.relief, body.brdf.exact_form()) {
+            (None, Some(f)) => Ok(f),
+            (Some(_), _) => Err(NoClosedForm {
+                reason: "with a DEM (it tilts the normals)".into(),
+            }),
+            (None, None) => Err(NoClosedForm {
+                reason: format!("for the {} BRDF", body.brdf.name()),
+            }),
+        };
         Ok(match integration {
-            Integration::Auto { points_per_deg } => match brdf.exact_form() {
-                Some(f) => Method::Exact(f),
-                None => Method::Trapezoidal { points_per_deg },
+            Integration::Auto { points_per_deg } => match form {
+                Ok(f) => Method::Exact(f),
+                Err(_) => Method::Trapezoidal { points_per_deg },
             },
-            Integration::Exact => Method::Exact(
-                brdf.exact_form()
-                    .ok_or(NoClosedForm { brdf: brdf.name() })?,
-            ),
+            Integration::Exact => Method::Exact(form?),
             Integration::Trapezoidal { points_per_deg } => Method::Trapezoidal { points_per_deg },
             Integration::Pointwise => Method::Pointwise,
         })
@@ -314,13 +322,6 @@ pub fn integrate(
     pl: &mut Vec<f64>,
 ) -> f64 {
     let clip = view.shape.lit_visible(view.sun_csf, view.cam_csf);
-    // The closed forms integrate the shape's own normals: with relief, the trapezoidal rule.
-    let method = match (method, view.relief) {
-        (Method::Exact(_), Some(_)) => Method::Trapezoidal {
-            points_per_deg: 5.0,
-        },
-        _ => method,
-    };
     let nodes = Nodes::new(boundary_nodes.max(1));
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
     let r = view.shape.bounding_radius_m();

@@ -159,7 +159,7 @@ impl Renderer {
     ) -> Result<Frame, RenderError> {
         check_pose(scene, pose)?;
         check_settings(settings)?;
-        let method = Method::resolve(settings.integration, &scene.body.brdf)?;
+        let method = Method::resolve(settings.integration, &scene.body)?;
         let threads = self.threads;
         let buf = &mut self.buf;
         self.pool

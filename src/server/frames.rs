@@ -216,7 +216,8 @@ impl FrameThread {
     }
 
     /// Runs until the intake stops.
-    pub fn run(mut self, intake: Arc<Intake>) {
+    pub fn run(mut self) {
+        let intake = self.shared.intake.clone();
         while let Some(next) = intake.next() {
             match next {
                 Ok(job) => self.frame(job),

@@ -379,7 +379,6 @@ impl Shared {
 pub struct Server {
     pub tcp_addr: SocketAddr,
     pub http_addr: SocketAddr,
-    pub presenter: String,
     pub shared: Arc<Shared>,
     stop: watch::Sender<bool>,
     runtime: Option<tokio::runtime::Runtime>,
@@ -468,16 +467,15 @@ impl Server {
                 camera,
             }),
             subscribers: Mutex::new(Vec::new()),
-            intake: intake.clone(),
+            intake,
             recorder,
             next_conn: std::sync::atomic::AtomicU64::new(1),
             shutdown: stop_rx.clone(),
         });
         let frame_thread = FrameThread::new(maker, present, shared.clone());
-        let intake_ft = intake.clone();
         let frame_thread = std::thread::Builder::new()
             .name("optistim-frames".into())
-            .spawn(move || frame_thread.run(intake_ft))
+            .spawn(move || frame_thread.run())
             .map_err(|e| ServerError::Runtime(e.to_string()))?;
 
         runtime.spawn(connection::accept(tcp, shared.clone()));
@@ -502,12 +500,16 @@ impl Server {
         Ok(Server {
             tcp_addr,
             http_addr,
-            presenter,
             shared,
             stop,
             runtime: Some(runtime),
             frame_thread: Some(frame_thread),
         })
+    }
+
+    /// The presenter in words.
+    pub fn presenter(&self) -> &str {
+        &self.shared.presenter
     }
 
     /// Stops: no new poses, the frame in flight is finished, waiting poses are answered

@@ -248,3 +248,68 @@ fn bad_stimulator_sections_say_what_is_wrong() {
     .to_string();
     assert!(e.contains("no_such_curve.csv"), "{e}");
 }
+
+/// A measured non-uniformity map (`screen_non_uniformity_map`, a float TIFF of the region's
+/// size) replaces the radial model: a map of 0.5 on the left half of the region halves what
+/// the simulated camera sees there and leaves the right half as it was; a map of the wrong
+/// size is refused with both sizes.
+#[test]
+fn a_non_uniformity_map_scales_what_the_camera_sees() {
+    let mut cfg = moon_on_screen();
+    let st = cfg.stimulator.clone().unwrap();
+    let (intr, det) = (&cfg.scene.camera.intrinsics, &cfg.scene.camera.detector);
+    let stim = Stimulator::new(&st, intr, det).unwrap();
+    let [rw, rh] = stim.resampler().region_px();
+    let shown = stim.process(&rendered_signal(&cfg)).unwrap();
+    let flat = SimulatedCamera::from_config(&st, intr, det)
+        .unwrap()
+        .capture(&shown.screen_dn, 0)
+        .unwrap();
+
+    let dir = std::env::temp_dir().join(format!("optistim-nu-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let write = |name: &str, w: usize, h: usize| {
+        let path = dir.join(name);
+        let gains: Vec<f32> = (0..w * h)
+            .map(|i| if i % w < w / 2 { 0.5 } else { 1.0 })
+            .collect();
+        let file = std::fs::File::create(&path).unwrap();
+        tiff::encoder::TiffEncoder::new(file)
+            .unwrap()
+            .write_image::<tiff::encoder::colortype::Gray32Float>(w as u32, h as u32, &gains)
+            .unwrap();
+        path
+    };
+    let st_map = cfg.stimulator.as_mut().unwrap();
+    st_map.non_uniformity_map = Some(write("half.tif", rw, rh));
+    let halved = SimulatedCamera::from_config(st_map, intr, det)
+        .unwrap()
+        .capture(&shown.screen_dn, 0)
+        .unwrap();
+    // One to one: camera column i sees region column i.
+    let n = intr.width_px as usize;
+    let half = |img: &[f64], left: bool| -> f64 {
+        img.chunks(n)
+            .map(|row| {
+                if left {
+                    row[..n / 2].iter().sum::<f64>()
+                } else {
+                    row[n / 2..].iter().sum()
+                }
+            })
+            .sum()
+    };
+    let left = half(&halved.signal_e_per_s, true) / half(&flat.signal_e_per_s, true);
+    let right = half(&halved.signal_e_per_s, false) / half(&flat.signal_e_per_s, false);
+    assert!(
+        (left - 0.5).abs() < 1e-9 && (right - 1.0).abs() < 1e-9,
+        "{left} {right}"
+    );
+
+    st_map.non_uniformity_map = Some(write("small.tif", 16, 16));
+    let e = SimulatedCamera::from_config(st_map, intr, det)
+        .err()
+        .expect("refused");
+    assert!(e.to_string().contains("16 x 16 px"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

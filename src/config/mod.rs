@@ -346,6 +346,7 @@ impl Validator<'_> {
             collimator_transmittance: t_col,
             true_response: s.true_response.as_deref().map(|p| self.path(p)),
             corner_gain,
+            non_uniformity_map: s.screen_non_uniformity_map.as_deref().map(|p| self.path(p)),
         })
     }
 

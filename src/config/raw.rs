@@ -204,4 +204,5 @@ pub struct RawStimulator {
     /// gain at the region's corners (default 1, uniform).
     pub true_response: Option<String>,
     pub screen_corner_gain: Option<f64>,
+    pub screen_non_uniformity_map: Option<String>,
 }

@@ -77,7 +77,25 @@ impl SimulatedCamera {
     ) -> Result<SimulatedCamera, StimulatorError> {
         let path = config.true_response.as_ref().unwrap_or(&config.calibration);
         let curve = Curve::load(path, config.interp)?;
-        Ok(SimulatedCamera::new(config, curve, intrinsics, detector))
+        let mut camera = SimulatedCamera::new(config, curve, intrinsics, detector);
+        if let Some(file) = &config.non_uniformity_map {
+            let bad = |message: String| StimulatorError::NonUniformity {
+                file: file.display().to_string(),
+                message,
+            };
+            let map = crate::body::maps::Map::load(file, &Default::default())
+                .map_err(|e| bad(e.to_string()))?;
+            let region = camera.resampler.region_px();
+            if [map.width, map.height] != region {
+                return Err(bad(format!(
+                    "{} x {} px; the screen region is {} x {}",
+                    map.width, map.height, region[0], region[1]
+                )));
+            }
+            let gain: Vec<f64> = map.values.iter().map(|&g| g as f64).collect();
+            camera.set_non_uniformity(&gain, config.collimator_transmittance);
+        }
+        Ok(camera)
     }
 
     /// Replaces the per-region-pixel non-uniformity map (gains, row-major, region size).

@@ -52,6 +52,10 @@ pub struct StimulatorConfig {
     /// its non-uniformity, the gain at the region's corners (radial, 1 at the centre).
     pub true_response: Option<PathBuf>,
     pub corner_gain: f64,
+    /// A measured non-uniformity map instead of the radial model: a one-band TIFF of the
+    /// region's size, each pixel the gain of that screen pixel (integers normalised to their
+    /// full scale, floats as they are).
+    pub non_uniformity_map: Option<PathBuf>,
 }
 
 impl StimulatorConfig {
@@ -68,6 +72,8 @@ pub enum StimulatorError {
     ImageSize { got: usize, want: usize },
     #[error("calibration: {0}")]
     Measurement(String),
+    #[error("screen non-uniformity map {file}: {message}")]
+    NonUniformity { file: String, message: String },
 }
 
 /// Time per stimulator stage [ms]. With the one-to-one mapping `feff` includes the region

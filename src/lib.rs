@@ -12,6 +12,7 @@
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
 //! | [`body`] | the body's shape (sphere now; ellipsoids and meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo and DEM relief (normals) |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
+//! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure |
 //! | [`detector`] | (P/L) -> signal -> electrons with noises -> DN (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
@@ -23,7 +24,7 @@
 //! | [`io`] | FITS and PNG outputs (in memory too), SHA-256 content hashes |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
-//! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate`, `replay` |
+//! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
 //!
 //! # Data flow of one frame
 //!
@@ -56,6 +57,7 @@ pub mod app;
 pub mod body;
 pub mod brdf;
 pub mod camera;
+pub mod compare;
 pub mod config;
 pub mod detector;
 pub mod display;

@@ -26,6 +26,20 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
     },
+    /// Render a scene as its camera saves it and compare it with a real photograph: NCC
+    /// alignment, SSIM luminance / contrast / structure over the foreground, total DN ratio.
+    Compare {
+        /// Scene TOML (e.g. config/bfs_25mm.toml).
+        scene: PathBuf,
+        /// The photograph: one-channel PNG of the camera's size.
+        photo: PathBuf,
+        /// Largest alignment shift searched [px].
+        #[arg(long, default_value_t = 20)]
+        max_shift: i64,
+        /// Write rendered.png (aligned) and alignment.png here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Render every pose of a trajectory and report frame times.
     Bench {
         /// Pose stream, CSV or JSON lines (../shared/trajectories/); without it, the scene's
@@ -148,6 +162,22 @@ fn run() -> anyhow::Result<()> {
             let cfg = config::load(&scene)?;
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out)?;
             println!("{}", serde_json::to_string(&summary)?);
+        }
+        Command::Compare {
+            scene,
+            photo,
+            max_shift,
+            out,
+        } => {
+            let cfg = config::load(&scene)?;
+            let report = app::compare::run(
+                &cfg,
+                &scene.display().to_string(),
+                &photo,
+                max_shift,
+                out.as_deref(),
+            )?;
+            println!("{}", serde_json::to_string(&report)?);
         }
         Command::Bench {
             trajectory,

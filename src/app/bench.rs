@@ -76,7 +76,7 @@ pub fn run(
         let frame = renderer.render(&config.scene, pose, &config.settings)?;
         let td = Instant::now();
         let signal = det.signal(&frame.pl, k);
-        det.expose(&signal, pose.frame_id, &mut dn);
+        det.expose(&signal, (frame.width, frame.height), pose.frame_id, &mut dn);
         let detector_ms = td.elapsed().as_secs_f64() * 1e3;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if let serde_json::Value::Object(o) =

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod calibrate;
+pub mod compare;
 pub mod render;
 pub mod replay;
 pub mod show;
@@ -22,6 +23,8 @@ pub enum AppError {
     Pipeline(#[from] crate::pipeline::PipelineError),
     #[error(transparent)]
     Display(#[from] crate::display::DisplayError),
+    #[error("compare: {0}")]
+    Compare(String),
     #[error("replay: {0}")]
     Replay(String),
     #[error(transparent)]

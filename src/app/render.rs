@@ -62,7 +62,12 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
     let power: Vec<f64> = frame.pl.iter().map(|x| x * radiance).collect();
     let signal = det.signal(&frame.pl, k_signal);
     let mut dn = Vec::new();
-    det.expose(&signal, config.pose.frame_id, &mut dn);
+    det.expose(
+        &signal,
+        (frame.width, frame.height),
+        config.pose.frame_id,
+        &mut dn,
+    );
     let detector_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let t0 = Instant::now();
@@ -98,7 +103,7 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
         Bitpix::F32,
         &with("m", "range to the surface, NaN = empty"),
     )?;
-    crate::io::write_png_gray(&out.join("image.png"), w, h, &dn, det.bit_depth)?;
+    crate::io::write_png_gray(&out.join("image.png"), w, h, &dn, det.saved_bits)?;
     let mut write_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let stimulator = match &config.stimulator {
@@ -120,7 +125,7 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
             )?;
             let [sw, sh] = st.screen_px;
             crate::io::write_png_gray(&out.join("screen.png"), sw, sh, &frame_st.screen_dn, 16)?;
-            crate::io::write_png_gray(&out.join("camera.png"), w, h, &seen.dn, det.bit_depth)?;
+            crate::io::write_png_gray(&out.join("camera.png"), w, h, &seen.dn, det.saved_bits)?;
             write_ms += t0.elapsed().as_secs_f64() * 1e3;
             Some(StimulatorSummary {
                 calibration_id: frame_st.calibration_id,

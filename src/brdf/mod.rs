@@ -192,6 +192,46 @@ impl Brdf {
         self.with_scale(value / per_unit)
     }
 
+    /// The scale parameters whose normal albedos are `values`, for a map of normal albedos.
+    /// Linear models take one ratio. Hapke's `p_N(w)` is tabulated once at 4097 values of
+    /// `w` (denser towards `w = 1`, where it steepens) and inverted by linear interpolation:
+    /// a whole map costs one table, not one root search per texel. A value above `p_N(1)`
+    /// is returned as `Err(value)`; NaN (no data) stays NaN.
+    pub fn scales_for_normal_albedos(&self, values: &[f64]) -> Result<Vec<f64>, f64> {
+        if !matches!(self, Brdf::Hapke(_)) {
+            let per_unit = self.with_scale(1.0).albedo(AlbedoType::Normal);
+            return Ok(values.iter().map(|v| v / per_unit).collect());
+        }
+        const N: usize = 4096;
+        let w: Vec<f64> = (0..=N)
+            .map(|k| {
+                let t = 1.0 - k as f64 / N as f64;
+                1.0 - t * t
+            })
+            .collect();
+        let p: Vec<f64> = w
+            .iter()
+            .map(|&w| self.with_scale(w).albedo(AlbedoType::Normal))
+            .collect();
+        values
+            .iter()
+            .map(|&v| {
+                if v.is_nan() {
+                    return Ok(v);
+                }
+                if v <= 0.0 {
+                    return Ok(0.0);
+                }
+                if v > p[N] {
+                    return Err(v);
+                }
+                let k = p.partition_point(|&x| x < v).clamp(1, N);
+                let t = (v - p[k - 1]) / (p[k] - p[k - 1]);
+                Ok(w[k - 1] + t * (w[k] - w[k - 1]))
+            })
+            .collect()
+    }
+
     /// The albedo of `kind` of this model as parametrised.
     pub fn albedo(&self, kind: AlbedoType) -> f64 {
         match kind {

@@ -498,21 +498,37 @@ impl Validator<'_> {
             None => None,
             Some(m) => {
                 // Map values are albedos of `albedo_type` (w itself for single_scattering).
-                let scale_per_value = match kind {
-                    None => 1.0,
+                let map = self.map("body.albedo_map", m)?;
+                let (map, scale_per_value) = match kind {
+                    None => (map, 1.0),
+                    // Hapke's albedos are not linear in w: the map of normal albedos becomes
+                    // a map of w, once, at load.
+                    Some(AlbedoType::Normal) if matches!(brdf, Brdf::Hapke(_)) => {
+                        let values: Vec<f64> = map.values.iter().map(|&v| v as f64).collect();
+                        let w = brdf.scales_for_normal_albedos(&values).or_else(|v| {
+                            self.err(
+                                "body.albedo_map",
+                                format!("a normal albedo of {v}"),
+                                "values this hapke body reaches with w <= 1",
+                            )
+                        })?;
+                        let w_map = map.with_values(w).or_else(|e| {
+                            self.err("body.albedo_map", m.path.as_str(), &e.to_string())
+                        })?;
+                        (w_map, 1.0)
+                    }
                     Some(_) if matches!(brdf, Brdf::Hapke(_)) => {
                         return self.err(
                             "body.albedo_type",
                             &b.albedo_type,
-                            "single_scattering with an albedo map on a hapke body (the map \
-                             holds w)",
+                            "normal or single_scattering with an albedo map on a hapke body",
                         );
                     }
                     // Linear in the scale: the scale that gives an albedo of 1, per unit.
-                    Some(kind) => brdf.with_albedo(1.0, kind).scale(),
+                    Some(kind) => (map, brdf.with_albedo(1.0, kind).scale()),
                 };
                 Some(crate::body::AlbedoMap {
-                    map: std::sync::Arc::new(self.map("body.albedo_map", m)?),
+                    map: std::sync::Arc::new(map),
                     scale_per_value,
                 })
             }
@@ -639,6 +655,14 @@ impl Validator<'_> {
         if !(1..=16).contains(&c.bit_depth) {
             return self.err("camera.bit_depth", c.bit_depth, "an integer in [1, 16]");
         }
+        let saved_bits = c.saved_bit_depth.unwrap_or(c.bit_depth);
+        if !(1..=c.bit_depth).contains(&saved_bits) {
+            return self.err(
+                "camera.saved_bit_depth",
+                saved_bits,
+                "an integer in [1, camera.bit_depth]",
+            );
+        }
         let n = &c.noise;
         let noise = Noise {
             shot: n.shot.then_some(Shot),
@@ -675,8 +699,10 @@ impl Validator<'_> {
             adc_gain_dn_per_e: self.positive("camera.adc_gain_dn_per_e", c.adc_gain_dn_per_e)?,
             offset_dn: self.non_negative("camera.offset_dn", c.offset_dn)?,
             bit_depth: c.bit_depth as u32,
+            saved_bits: saved_bits as u32,
             qe,
             transmittance,
+            psf_sigma_px: self.in_range("camera.psf_sigma_px", c.psf_sigma_px, 0.0, 100.0)?,
             noise,
             seed: n.seed,
         };

@@ -124,8 +124,13 @@ pub struct RawCamera {
     #[serde(default)]
     pub offset_dn: f64,
     pub bit_depth: i64,
+    /// The camera's output depth: the ADC's most significant bits (`bit_depth` when absent).
+    pub saved_bit_depth: Option<i64>,
     pub qe: RawCurve,
     pub transmittance: Option<RawCurve>,
+    /// Gaussian PSF of the optics (and seeing) [px], applied to the camera's own images only.
+    #[serde(default)]
+    pub psf_sigma_px: f64,
     /// Band for `power.fits` [nm]; the whole spectrum when absent.
     pub power_band_nm: Option<[f64; 2]>,
     #[serde(default)]

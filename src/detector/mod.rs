@@ -2,6 +2,7 @@
 //! at the full well (Eq. 46) -> digital numbers (Eq. 47).
 
 pub mod noise;
+pub mod psf;
 
 use crate::radiometry::{SpectralTable, SunSpectrum};
 use noise::{Noise, Stream, rng};
@@ -15,9 +16,17 @@ pub struct Detector {
     pub adc_gain_dn_per_e: f64,
     /// ADC offset `DN^(0)` [DN].
     pub offset_dn: f64,
+    /// The ADC's bit depth.
     pub bit_depth: u32,
+    /// The bits the camera hands out: the ADC's `bit_depth` most significant ones
+    /// (`saved_bits <= bit_depth`; a 12-bit ADC saved at 8 bit gives `DN_12 >> 4`).
+    pub saved_bits: u32,
     pub qe: SpectralTable,
     pub transmittance: SpectralTable,
+    /// The optics' (and, from the ground, the seeing's) Gaussian PSF [px], 0 = none. Applied
+    /// by [`Detector::expose`] only: the signal handed to a stimulator stays sharp, since the
+    /// flight camera's own optics blur the screen.
+    pub psf_sigma_px: f64,
     pub noise: Noise,
     pub seed: u64,
 }
@@ -33,16 +42,43 @@ impl Detector {
         pl.par_iter().map(|&x| x * signal_factor).collect()
     }
 
-    pub fn max_dn(&self) -> f64 {
+    /// The ADC's largest DN (at `bit_depth`).
+    pub fn adc_max_dn(&self) -> f64 {
         ((1u64 << self.bit_depth) - 1) as f64
+    }
+
+    /// ADC DN per saved DN: `2^(bit_depth - saved_bits)`.
+    pub fn saved_dn_step(&self) -> f64 {
+        (1u64 << (self.bit_depth - self.saved_bits)) as f64
+    }
+
+    /// The largest DN the camera hands out (at `saved_bits`).
+    pub fn max_dn(&self) -> f64 {
+        ((1u64 << self.saved_bits) - 1) as f64
     }
 
     /// Exposes one frame: noises on the electrons, full-well cap (Eq. 46), ADC with rounding to
     /// the nearest integer and the bit-depth cap (Eq. 47). Writes DN into `dn_out`.
-    pub fn expose(&self, signal_e_per_s: &[f64], frame_id: u64, dn_out: &mut Vec<u16>) {
+    /// `size` is the image's `(width, height)`, which the PSF needs.
+    pub fn expose(
+        &self,
+        signal_e_per_s: &[f64],
+        size: (usize, usize),
+        frame_id: u64,
+        dn_out: &mut Vec<u16>,
+    ) {
+        let blurred;
+        let signal_e_per_s = if self.psf_sigma_px > 0.0 {
+            let s = self.psf_sigma_px;
+            blurred = psf::gaussian_blur(signal_e_per_s, size.0, size.1, s, psf::radius(s));
+            &blurred[..]
+        } else {
+            signal_e_per_s
+        };
         dn_out.clear();
         dn_out.resize(signal_e_per_s.len(), 0);
-        let max_dn = self.max_dn();
+        let max_dn = self.adc_max_dn();
+        let drop_bits = self.bit_depth - self.saved_bits;
         let t = self.exposure_s;
         let noise = &self.noise;
         let seed = self.seed;
@@ -80,8 +116,10 @@ impl Detector {
                     }
                     let e = e.clamp(0.0, self.full_well_e);
                     // Round half up (the value is clamped to >= 0 first; libm's `round` is not inlined).
-                    *dn = ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn) + 0.5)
+                    let adc = ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn)
+                        + 0.5)
                         .min(max_dn) as u16;
+                    *dn = adc >> drop_bits;
                 }
             });
     }
@@ -98,8 +136,10 @@ mod tests {
             adc_gain_dn_per_e: 0.4,
             offset_dn: 10.0,
             bit_depth: 12,
+            saved_bits: 12,
             qe: SpectralTable::flat(400e-9, 700e-9, 0.5),
             transmittance: SpectralTable::flat(400e-9, 700e-9, 1.0),
+            psf_sigma_px: 0.0,
             noise,
             seed: 3,
         }
@@ -109,9 +149,14 @@ mod tests {
     fn noiseless_adc_follows_eq_47() {
         let d = det(Noise::default());
         let mut out = Vec::new();
-        d.expose(&[0.0, 1e6, 5e6, 1e9], 0, &mut out);
+        d.expose(&[0.0, 1e6, 5e6, 1e9], (4, 1), 0, &mut out);
         // 1e6 e-/s * 1 ms = 1000 e- -> 10 + 400 DN; 5000 e- -> 2010; capped at FWC -> 4010.
         assert_eq!(out, vec![10, 410, 2010, 4010]);
+        // Saved at 8 bit: the ADC's 8 most significant bits.
+        let d8 = Detector { saved_bits: 8, ..d };
+        d8.expose(&[0.0, 1e6, 5e6, 1e9], (4, 1), 0, &mut out);
+        assert_eq!(out, vec![0, 25, 125, 250]);
+        assert_eq!(d8.max_dn(), 255.0);
     }
 
     #[test]
@@ -122,8 +167,8 @@ mod tests {
         });
         let s = vec![1e6; 20_000]; // 1000 e- mean
         let (mut a, mut b) = (Vec::new(), Vec::new());
-        d.expose(&s, 7, &mut a);
-        d.expose(&s, 7, &mut b);
+        d.expose(&s, (200, 100), 7, &mut a);
+        d.expose(&s, (200, 100), 7, &mut b);
         assert_eq!(a, b);
         let e: Vec<f64> = a.iter().map(|&x| (x as f64 - 10.0) / 0.4).collect();
         let m = e.iter().sum::<f64>() / e.len() as f64;
@@ -132,7 +177,7 @@ mod tests {
         // Quantisation (1/0.4 e- steps) adds 2.5^2/12 to the variance.
         assert!((v - 1000.0 - 0.52).abs() < 60.0, "{v}");
         let mut c = Vec::new();
-        d.expose(&s, 8, &mut c);
+        d.expose(&s, (200, 100), 8, &mut c);
         assert_ne!(a, c, "temporal noise must change with the frame");
     }
 }

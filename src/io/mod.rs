@@ -12,6 +12,13 @@ pub enum IoError {
         path: String,
         source: std::io::Error,
     },
+    #[error("{path}: PNG decoding failed: {source}")]
+    PngRead {
+        path: String,
+        source: png::DecodingError,
+    },
+    #[error("{path}: a one-channel grayscale PNG, not {what}")]
+    NotGray { path: String, what: String },
     #[error("{path}: PNG encoding failed: {source}")]
     Png {
         path: String,
@@ -34,6 +41,63 @@ pub fn write_png_gray(
         source,
     })?;
     std::fs::write(path, bytes).map_err(|source| IoError::File { path: p, source })
+}
+
+/// Writes an 8-bit RGB PNG (`rgb` holds 3 bytes per pixel).
+pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), IoError> {
+    let p = path.display().to_string();
+    let png_err = |source| IoError::Png {
+        path: p.clone(),
+        source,
+    };
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().map_err(png_err)?;
+    w.write_image_data(rgb).map_err(png_err)?;
+    w.finish().map_err(png_err)?;
+    std::fs::write(path, out).map_err(|source| IoError::File { path: p, source })
+}
+
+/// Reads a one-channel grayscale PNG (8 or 16 bit): `(width, height, DN, bit depth)`.
+pub fn read_png_gray(path: &Path) -> Result<(usize, usize, Vec<u16>, u32), IoError> {
+    let p = path.display().to_string();
+    let file = std::fs::File::open(path).map_err(|source| IoError::File {
+        path: p.clone(),
+        source,
+    })?;
+    let dec_err = |source| IoError::PngRead {
+        path: p.clone(),
+        source,
+    };
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .map_err(dec_err)?;
+    let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];
+    let info = reader.next_frame(&mut buf).map_err(dec_err)?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let dn: Vec<u16> = match (info.color_type, info.bit_depth) {
+        (png::ColorType::Grayscale, png::BitDepth::Eight) => {
+            buf[..w * h].iter().map(|&b| b as u16).collect()
+        }
+        (png::ColorType::Grayscale, png::BitDepth::Sixteen) => buf[..2 * w * h]
+            .chunks_exact(2)
+            .map(|b| u16::from_be_bytes([b[0], b[1]]))
+            .collect(),
+        (c, d) => {
+            return Err(IoError::NotGray {
+                path: p,
+                what: format!("{c:?} at {d:?}"),
+            });
+        }
+    };
+    let bits = if info.bit_depth == png::BitDepth::Eight {
+        8
+    } else {
+        16
+    };
+    Ok((w, h, dn, bits))
 }
 
 /// A grayscale PNG in memory: 8-bit when `bit_depth <= 8`, else 16-bit holding the raw DN.

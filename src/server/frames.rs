@@ -472,7 +472,7 @@ impl FrameThread {
                     frame_id: latest.frame_id,
                     width: w as u32,
                     height: h as u32,
-                    bit_depth: camera.detector().bit_depth as u8,
+                    bit_depth: camera.detector().saved_bits as u8,
                     dn: c.dn,
                 };
                 for s in subscribers {

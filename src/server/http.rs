@@ -128,7 +128,7 @@ async fn camera_png(State(s): State<Arc<Shared>>) -> Response {
             .capture_exposed(&latest.dn, latest.frame_id, latest.exposure_s)
             .map_err(|e| e.to_string())?;
         let [w, h] = camera.camera_px();
-        crate::io::encode_png_gray(w, h, &c.dn, camera.detector().bit_depth)
+        crate::io::encode_png_gray(w, h, &c.dn, camera.detector().saved_bits)
             .map_err(|e| e.to_string())
     })
     .await;

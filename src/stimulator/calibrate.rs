@@ -181,13 +181,14 @@ fn measure(bench: &mut dyn Bench, code: u32) -> Result<Point, StimulatorError> {
     let frame = vec![code as u16; sw * sh];
     let det = bench.detector().clone();
     let span = det
-        .max_dn()
+        .adc_max_dn()
         .min(det.full_well_e * det.adc_gain_dn_per_e + det.offset_dn)
         - det.offset_dn;
     let mut exposure = det.exposure_s;
     for _ in 0..12 {
         let dn = bench.show_and_capture(&frame, exposure)?;
-        let mean = central_mean(&dn, bench.camera_px());
+        // Back to ADC units: a camera saving fewer bits hands out its most significant ones.
+        let mean = central_mean(&dn, bench.camera_px()) * det.saved_dn_step();
         let fill = (mean - det.offset_dn) / span;
         if (0.1..=0.8).contains(&fill) {
             let electrons = (mean - det.offset_dn) / det.adc_gain_dn_per_e;

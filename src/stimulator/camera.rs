@@ -154,14 +154,17 @@ impl SimulatedCamera {
         let mut feff_w_m2 = Vec::new();
         self.resampler.to_camera(&emitted, &mut feff_w_m2);
         let signal_e_per_s: Vec<f64> = feff_w_m2.iter().map(|f| f / self.k).collect();
+        let size = (self.camera_px[0], self.camera_px[1]);
         let mut dn = Vec::new();
         match exposure_s {
             Some(t) => {
                 let mut detector = self.detector.clone();
                 detector.exposure_s = t;
-                detector.expose(&signal_e_per_s, frame_id, &mut dn);
+                detector.expose(&signal_e_per_s, size, frame_id, &mut dn);
             }
-            None => self.detector.expose(&signal_e_per_s, frame_id, &mut dn),
+            None => self
+                .detector
+                .expose(&signal_e_per_s, size, frame_id, &mut dn),
         }
         Ok(Capture {
             feff_w_m2,

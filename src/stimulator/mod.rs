@@ -306,8 +306,10 @@ mod tests {
             adc_gain_dn_per_e: 0.1,
             offset_dn: 0.0,
             bit_depth: 12,
+            saved_bits: 12,
             qe,
             transmittance: t,
+            psf_sigma_px: 0.0,
             noise: Default::default(),
             seed: 0,
         };

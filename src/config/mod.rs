@@ -537,15 +537,26 @@ impl Validator<'_> {
             None => None,
             Some(m) => {
                 let heights = self.map("body.dem_map", m)?;
-                Some(crate::body::Relief::new(heights, radius_m).or_else(|e| {
+                let relief = crate::body::Relief::new(heights, radius_m).or_else(|e| {
                     self.err(
                         "body.dem_map",
                         m.path.as_str(),
                         &format!("a usable DEM ({e})"),
                     )
-                })?)
+                })?;
+                Some(match &b.horizon_map {
+                    None => relief,
+                    Some(h) => relief.with_horizon(self.map("body.horizon_map", h)?),
+                })
             }
         };
+        if b.horizon_map.is_some() && b.dem_map.is_none() {
+            return self.err(
+                "body.horizon_map",
+                "without body.dem_map",
+                "a horizon map beside the DEM it was computed from",
+            );
+        }
         Ok(Body {
             name: b.name.clone(),
             shape: Shape::Sphere(Sphere { radius_m }),
@@ -945,8 +956,17 @@ impl Validator<'_> {
             s.bounding_tolerance_rad =
                 self.in_range("render.bounding_tolerance_rad", t, 1e-12, 1e-2)?;
         }
-        if let Some(v) = r.self_shadowing {
-            s.self_shadowing = v;
+        if let Some(v) = &r.self_shadowing {
+            use crate::render::settings::SelfShadowing;
+            s.self_shadowing = match self.choice(
+                "render.self_shadowing",
+                v,
+                &["off", "ray_marching", "horizon_map"],
+            )? {
+                "ray_marching" => SelfShadowing::RayMarching,
+                "horizon_map" => SelfShadowing::HorizonMap,
+                _ => SelfShadowing::Off,
+            };
         }
         if let Some(d) = r.depth {
             s.depth = d;

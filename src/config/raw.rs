@@ -54,6 +54,8 @@ pub struct RawBody {
     /// Heights above `radius_m` (after the encoding: metres; the shared LOLA DEM is in km,
     /// so `scale = 1000`).
     pub dem_map: Option<RawMap>,
+    /// Elevation angle of the local horizon [rad] per texel (needs `dem_map`).
+    pub horizon_map: Option<RawMap>,
 }
 
 /// A texture map and its encoding (`docs/scene.md`, `body::maps::Encoding`).
@@ -188,7 +190,7 @@ pub struct RawRender {
     pub threads: Option<i64>,
     pub bounding_tolerance_rad: Option<f64>,
     pub depth: Option<bool>,
-    pub self_shadowing: Option<bool>,
+    pub self_shadowing: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

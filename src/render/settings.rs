@@ -58,6 +58,20 @@ pub enum FovShape {
     Cone,
 }
 
+/// How the relief shadows itself (Sec. 4.5, item 4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SelfShadowing {
+    Off,
+    /// Rays marched over the DEM towards the Sun and the camera (Eq. 33), from the points
+    /// where the terrain could block them: exact to the DEM, about a microsecond a point.
+    RayMarching,
+    /// The body's horizon map: the direction is blocked when it rises less than the local
+    /// horizon's elevation angle. One lookup a point; the map's horizon is the same in every
+    /// azimuth, so it is an approximation (see `docs/scene.md`).
+    HorizonMap,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Settings {
     pub points: PointBudget,
@@ -84,11 +98,10 @@ pub struct Settings {
     pub bounding_tolerance_rad: f64,
     /// Also ray-cast the range to the surface per pixel.
     pub depth: bool,
-    /// With a DEM: march rays over it towards the Sun and towards the camera (Sec. 4.5, item
-    /// 4; Eq. 33) from the points where the terrain could block them (the terminator and
-    /// limb bands: where the ray rises more slowly than the DEM's steepest slope). Off by
-    /// default: it costs about a micro-second per such point.
-    pub self_shadowing: bool,
+    /// With a DEM: whether and how the relief hides the Sun and the camera from the surface
+    /// (off by default; ray marching costs about a micro-second per point in the terminator
+    /// and limb bands, the horizon map one lookup).
+    pub self_shadowing: SelfShadowing,
 }
 
 impl Default for Settings {
@@ -115,7 +128,7 @@ impl Default for Settings {
             threads: 0,
             bounding_tolerance_rad: 1e-7,
             depth: false,
-            self_shadowing: false,
+            self_shadowing: SelfShadowing::Off,
         }
     }
 }

@@ -1,8 +1,9 @@
 //! One frame's geometry, derived once from the pose: the CSF (Sec. 4.1), the camera and Sun
 //! positions in it, and `camera_from_csf`. Every later step works in CSF.
 
-use super::settings::FovShape;
+use super::settings::{FovShape, SelfShadowing};
 use crate::body::{Relief, Shape};
+use crate::brdf::Local;
 use crate::camera::Intrinsics;
 use crate::geometry::CsfFrame;
 use crate::scene::Pose;
@@ -13,8 +14,8 @@ pub struct View<'a> {
     pub shape: &'a Shape,
     /// DEM slopes that tilt the normals the BRDF sees, if any.
     pub relief: Option<&'a Relief>,
-    /// March rays over the relief towards the Sun and the camera.
-    pub shadows: bool,
+    /// How the relief hides the Sun and the camera (`Off` without a relief).
+    pub shadows: SelfShadowing,
     pub csf: CsfFrame,
     pub csf_from_body: DMat3,
     pub camera_from_csf: DMat3,
@@ -36,7 +37,7 @@ impl<'a> View<'a> {
         intrinsics: &'a Intrinsics,
         shape: &'a Shape,
         relief: Option<&'a Relief>,
-        self_shadowing: bool,
+        self_shadowing: SelfShadowing,
         pose: &Pose,
         m: u32,
         fov: FovShape,
@@ -50,7 +51,11 @@ impl<'a> View<'a> {
             intrinsics,
             shape,
             relief,
-            shadows: self_shadowing && relief.is_some(),
+            shadows: if relief.is_some() {
+                self_shadowing
+            } else {
+                SelfShadowing::Off
+            },
             csf_from_body,
             csf,
             camera_from_csf: camera_from_body * csf.body_from_csf,
@@ -73,20 +78,41 @@ impl<'a> View<'a> {
         }
     }
 
-    /// Whether the relief hides the Sun (first) and the camera (second) from the surface
-    /// point `p` over CSF unit direction `dir` (always visible without self-shadowing).
+    /// Hides what the relief hides at the surface point `p` over CSF unit direction `dir`:
+    /// `g.mu0` (the Sun) and `g.mu` (the camera) become 0 where the terrain blocks them
+    /// (ray marching), or where they rise less than the horizon map's horizon. Nothing
+    /// without self-shadowing.
     #[inline]
-    pub fn shadowed(&self, dir: DVec3, p: DVec3) -> (bool, bool) {
-        match (self.shadows, self.relief) {
-            (true, Some(r)) => {
+    pub fn shadow(&self, dir: DVec3, p: DVec3, g: &mut Local) {
+        let Some(r) = self.relief else {
+            return;
+        };
+        match self.shadows {
+            SelfShadowing::Off => {}
+            SelfShadowing::RayMarching => {
                 let up = self.csf.body_from_csf * dir;
                 let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
-                (
-                    r.occluded(up, to(self.sun_csf)),
-                    r.occluded(up, to(self.cam_csf)),
-                )
+                if g.mu0 > 0.0 && r.occluded(up, to(self.sun_csf)) {
+                    g.mu0 = 0.0;
+                }
+                if g.mu > 0.0 && r.occluded(up, to(self.cam_csf)) {
+                    g.mu = 0.0;
+                }
             }
-            _ => (false, false),
+            SelfShadowing::HorizonMap => {
+                let top = r.horizon_sin_max();
+                let low = |mu: f64| mu > 0.0 && mu < top;
+                if (low(g.mu0) || low(g.mu))
+                    && let Some(h) = r.horizon_sin(self.csf.body_from_csf * dir)
+                {
+                    if g.mu0 < h {
+                        g.mu0 = 0.0;
+                    }
+                    if g.mu < h {
+                        g.mu = 0.0;
+                    }
+                }
+            }
         }
     }
 

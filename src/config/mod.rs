@@ -843,6 +843,10 @@ impl Validator<'_> {
             }
             s.boundary_nodes = n as u32;
         }
+        if let Some(v) = r.trapezoid_points_per_px {
+            s.trapezoid_points_per_px =
+                self.in_range("render.trapezoid_points_per_px", v, 0.0, 1e3)?;
+        }
         let ppd = self.in_range(
             "render.trapezoid_points_per_deg",
             r.trapezoid_points_per_deg.unwrap_or(5.0),

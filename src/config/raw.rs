@@ -176,6 +176,7 @@ pub struct RawRender {
     pub split: Option<String>,
     pub integration: Option<String>,
     pub trapezoid_points_per_deg: Option<f64>,
+    pub trapezoid_points_per_px: Option<f64>,
     pub boundary_nodes: Option<i64>,
     pub min_points: Option<i64>,
     pub fov: Option<String>,

@@ -13,7 +13,9 @@
 //!   needs the first moments. With `s = X` and `c = (cos a, sin a, 0)` this reduces exactly to
 //!   Eq. 35.
 //! - **trapezoidal**: the trapezoidal rule on a sub-grid of `points_per_deg` points per degree,
-//!   each sample with its own directions and distances.
+//!   but no more than `points_per_px` per pixel the quadrangle spans in the image (a
+//!   far body needs no 25 BRDF evaluations per square degree when a degree is half a pixel),
+//!   at least 2 per side; each sample with its own directions and distances.
 //! - **pointwise**: the BRDF at the midpoint times the quadrangle's area (Eqs. 37-38).
 //!
 //! Quadrangles that straddle the limb or the terminator (see [`super::pruning`]) are integrated
@@ -272,14 +274,19 @@ fn trapezoid(
     i: usize,
     k: usize,
     points_per_deg: f64,
+    px_cap: &PixelCap,
     min_points: usize,
 ) -> f64 {
     let (p0, p1) = (trig.lon[i], trig.lon[i + 1]);
     let (l0, l1) = (trig.lat[k], trig.lat[k + 1]);
-    let count = |span: f64| {
-        ((span.to_degrees() * points_per_deg).ceil() as usize + 1).clamp(min_points, 64)
+    // Pixels per radian of arc on the surface here (an upper bound: no foreshortening).
+    let px_per_rad = px_cap.px_per_rad(view, trig.mid_dir(i, k));
+    let count = |span: f64, arc: f64| {
+        let n = (span.to_degrees() * points_per_deg).min(span * arc * px_per_rad);
+        (n.ceil() as usize + 1).clamp(min_points, 64)
     };
-    let (nu, nv) = (count(p1 - p0), count(l1 - l0));
+    let lat_mid = 0.5 * (l0 + l1);
+    let (nu, nv) = (count(p1 - p0, lat_mid.cos()), count(l1 - l0, 1.0));
     let mut sum = 0.0;
     for b in 0..nv {
         let lat = l0 + (l1 - l0) * b as f64 / (nv - 1) as f64;
@@ -298,6 +305,35 @@ fn trapezoid(
     sum * (p1 - p0) / (nu - 1) as f64 * (l1 - l0) / (nv - 1) as f64
 }
 
+/// The trapezoidal rule's cap in image space: at most `points_per_px` points per pixel a
+/// quadrangle spans (0 = no cap).
+pub struct PixelCap {
+    /// `points_per_px * R * f_px` [px m]: divided by the range, points per radian of arc.
+    scale: f64,
+}
+
+impl PixelCap {
+    pub fn new(view: &View, points_per_px: f64) -> PixelCap {
+        let (fu, fv) = view.intrinsics.focal_px();
+        let scale = if points_per_px > 0.0 {
+            points_per_px * view.shape.bounding_radius_m() * fu.max(fv) * view.m
+        } else {
+            f64::INFINITY
+        };
+        PixelCap { scale }
+    }
+
+    /// Points per radian of surface arc at the surface over CSF direction `dir`.
+    #[inline]
+    fn px_per_rad(&self, view: &View, dir: DVec3) -> f64 {
+        if self.scale.is_infinite() {
+            return f64::INFINITY;
+        }
+        let p = dir * view.shape.bounding_radius_m();
+        self.scale / (view.cam_csf - p).length()
+    }
+}
+
 /// Fills `pl` with `(P/L)_j` [sr m^2] of every quadrangle (zero where pruned) and returns
 /// their sum, accumulated row by row in a fixed order.
 /// `boundary_nodes` Gauss-Legendre nodes per dimension and per piece integrate the
@@ -311,6 +347,7 @@ pub fn integrate(
     albedo: Option<&AlbedoMap>,
     method: Method,
     boundary_nodes: usize,
+    points_per_px: f64,
     a_sun_m2: f64,
     a_cam_m2: f64,
     pl: &mut Vec<f64>,
@@ -326,6 +363,7 @@ pub fn integrate(
             .collect(),
         _ => Vec::new(),
     };
+    let px_cap = PixelCap::new(view, points_per_px);
     let boundary_ppd = match method {
         Method::Trapezoidal { points_per_deg } => points_per_deg,
         _ => 5.0,
@@ -363,7 +401,8 @@ pub fn integrate(
                     match &clip {
                         Some(c) => clipped(view, brdf, c, &nodes, trig, i, k),
                         None => {
-                            trapezoid(view, brdf, trig, i, k, boundary_ppd, BOUNDARY_MIN_POINTS)
+                            let n = BOUNDARY_MIN_POINTS;
+                            trapezoid(view, brdf, trig, i, k, boundary_ppd, &px_cap, n)
                         }
                     }
                 } else {
@@ -376,7 +415,7 @@ pub fn integrate(
                             }
                         }
                         Method::Trapezoidal { points_per_deg } => {
-                            trapezoid(view, brdf, trig, i, k, points_per_deg, 2)
+                            trapezoid(view, brdf, trig, i, k, points_per_deg, &px_cap, 2)
                         }
                         Method::Pointwise => {
                             let (g, geo) = sample(view, trig.mid_dir(i, k));

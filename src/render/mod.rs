@@ -333,6 +333,7 @@ fn render_in_pool(
             scene.body.albedo_map.as_ref(),
             method,
             settings.boundary_nodes as usize,
+            settings.trapezoid_points_per_px,
             a_sun,
             a_cam,
             &mut buf.pl,

@@ -82,6 +82,9 @@ pub struct Settings {
     pub sampling: Sampling,
     pub split: Split,
     pub integration: Integration,
+    /// The trapezoidal rule's cap in image space: at most this many points per pixel that a
+    /// quadrangle spans along each side (0 = no cap; `points_per_deg` alone).
+    pub trapezoid_points_per_px: f64,
     /// Gauss-Legendre nodes per dimension (and per piece) on quadrangles that straddle the
     /// limb or the terminator, integrated over their exact lit and visible part.
     pub boundary_nodes: u32,
@@ -119,6 +122,7 @@ impl Default for Settings {
             integration: Integration::Auto {
                 points_per_deg: 5.0,
             },
+            trapezoid_points_per_px: 2.0,
             boundary_nodes: 4,
             fov: FovShape::Frustum,
             gridding: Gridding::PolygonLinear,

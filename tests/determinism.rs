@@ -57,7 +57,7 @@ fn a_different_seed_changes_the_noise() {
         let det = &cfg.scene.camera.detector;
         let s = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
         let mut dn = Vec::new();
-        det.expose(&s, 0, &mut dn);
+        det.expose(&s, (frame.width, frame.height), 0, &mut dn);
         dn
     };
     assert_ne!(expose(&a), expose(&b));

@@ -43,7 +43,12 @@ fn compare(cfg: &Config, calibration: Curve, truth: Curve) -> Comparison {
     let st = cfg.stimulator.as_ref().unwrap();
     let signal = rendered_signal(cfg);
     let mut direct = Vec::new();
-    det.expose(&signal, 0, &mut direct);
+    det.expose(
+        &signal,
+        (intr.width_px as usize, intr.height_px as usize),
+        0,
+        &mut direct,
+    );
 
     let stim = Stimulator::with_curve(st, intr, det, Arc::new(calibration));
     let shown = stim.process(&signal).unwrap();

@@ -246,7 +246,15 @@ impl Map {
     /// wrap-around in longitude for a global map. Between the first (last) row's centres and
     /// the pole it blends towards the row's mean, so that the pole has one value. Outside a
     /// regional map: `None`.
+    #[inline]
     pub fn sample(&self, lon: f64, lat: f64) -> Option<f64> {
+        self.taps(lon, lat).map(|t| self.at(&t))
+    }
+
+    /// Where `(lon, lat)` falls on this map's grid: the texels and weights of [`Map::sample`],
+    /// reusable on every map of the same grid ([`Map::same_grid`]) at the cost of one lookup.
+    #[inline]
+    pub fn taps(&self, lon: f64, lat: f64) -> Option<Taps> {
         let mut x = (lon - self.lon0) / self.dlon - 0.5;
         if self.wraps {
             x = x.rem_euclid(self.width as f64);
@@ -257,43 +265,93 @@ impl Map {
         if y < -0.5 - 1e-12 || y > self.height as f64 - 0.5 + 1e-12 {
             return None;
         }
-        let row = |r: usize| {
-            let x0 = x.floor();
-            let t = x - x0;
-            let (c0, c1) = if self.wraps {
-                let c0 = (x0 as isize).rem_euclid(self.width as isize) as usize;
-                (c0, (c0 + 1) % self.width)
-            } else {
-                let c0 = (x0.max(0.0) as usize).min(self.width - 1);
-                (c0, (c0 + 1).min(self.width - 1))
-            };
-            let v = &self.values[r * self.width..];
-            (1.0 - t) * v[c0] as f64 + t * v[c1] as f64
+        let x0 = x.floor();
+        let tx = x - x0;
+        let (c0, c1) = if self.wraps {
+            let c0 = (x0 as isize).rem_euclid(self.width as isize) as usize;
+            (c0, (c0 + 1) % self.width)
+        } else {
+            let c0 = (x0.max(0.0) as usize).min(self.width - 1);
+            (c0, (c0 + 1).min(self.width - 1))
         };
-        if y < 0.0 {
-            // Between the north pole (or the map's edge) and the first row's centres.
-            let edge = if self.north_pole {
-                self.pole_north
-            } else {
-                row(0)
-            };
-            let t = y + 0.5; // 0 at the edge, 0.5 at the centres
-            return Some(edge + (row(0) - edge) * (2.0 * t));
-        }
+        let row = |r: usize, w: f64| {
+            let base = (r * self.width) as u32;
+            [
+                (base + c0 as u32, w * (1.0 - tx)),
+                (base + c1 as u32, w * tx),
+            ]
+        };
         let last = self.height - 1;
-        if y > last as f64 {
-            let edge = if self.south_pole {
-                self.pole_south
+        let ([a, b], [c, d], pole) = if y < 0.0 {
+            // Between the north pole (or the map's edge) and the first row's centres.
+            let t = 2.0 * (y + 0.5); // 0 at the edge, 1 at the centres
+            if self.north_pole {
+                (row(0, t), row(0, 0.0), (Pole::North, 1.0 - t))
             } else {
-                row(last)
-            };
-            let t = y - last as f64; // 0 at the centres, 0.5 at the edge
-            return Some(row(last) + (edge - row(last)) * (2.0 * t));
-        }
-        let r0 = y.floor() as usize;
-        let t = y - r0 as f64;
-        Some((1.0 - t) * row(r0) + t * row((r0 + 1).min(last)))
+                (row(0, 1.0), row(0, 0.0), (Pole::None, 0.0))
+            }
+        } else if y > last as f64 {
+            let t = 2.0 * (y - last as f64); // 0 at the centres, 1 at the edge
+            if self.south_pole {
+                (row(last, 1.0 - t), row(last, 0.0), (Pole::South, t))
+            } else {
+                (row(last, 1.0), row(last, 0.0), (Pole::None, 0.0))
+            }
+        } else {
+            let r0 = y.floor() as usize;
+            let t = y - r0 as f64;
+            (
+                row(r0, 1.0 - t),
+                row((r0 + 1).min(last), t),
+                (Pole::None, 0.0),
+            )
+        };
+        Some(Taps {
+            texel: [a.0, b.0, c.0, d.0],
+            weight: [a.1, b.1, c.1, d.1],
+            pole: pole.0,
+            pole_weight: pole.1,
+        })
     }
+
+    /// The value at `taps` (from this map or one of the same grid).
+    #[inline]
+    pub fn at(&self, t: &Taps) -> f64 {
+        let mut v = 0.0;
+        for k in 0..4 {
+            v += t.weight[k] * self.values[t.texel[k] as usize] as f64;
+        }
+        v + t.pole_weight
+            * match t.pole {
+                Pole::None => 0.0,
+                Pole::North => self.pole_north,
+                Pole::South => self.pole_south,
+            }
+    }
+
+    /// Whether `other` lies on this map's grid (its [`Map::taps`] serve both).
+    pub fn same_grid(&self, other: &Map) -> bool {
+        (self.width, self.height, self.wraps) == (other.width, other.height, other.wraps)
+            && [self.lon0, self.lat_top, self.dlon, self.dlat]
+                == [other.lon0, other.lat_top, other.dlon, other.dlat]
+    }
+}
+
+/// Where a sample falls: four texels (flat indices) and their weights, and the weight of a
+/// pole's value.
+#[derive(Clone, Copy, Debug)]
+pub struct Taps {
+    texel: [u32; 4],
+    weight: [f64; 4],
+    pole: Pole,
+    pole_weight: f64,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Pole {
+    None,
+    North,
+    South,
 }
 
 #[cfg(test)]

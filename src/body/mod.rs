@@ -96,9 +96,11 @@ pub struct Relief {
     max_slope: f64,
     /// Ray-marching step [m]: a quarter texel in latitude.
     step_m: f64,
-    /// Elevation angle of the local horizon [rad] (one value per texel, every azimuth).
-    pub horizon_rad: Option<std::sync::Arc<maps::Map>>,
+    /// The sine of the local horizon's elevation angle (one value per texel, every azimuth),
+    /// taken once at load from the horizon map [rad].
+    pub horizon_sin: Option<std::sync::Arc<maps::Map>>,
     horizon_sin_max: f64,
+    horizon_on_dem_grid: bool,
 }
 
 impl Relief {
@@ -142,33 +144,29 @@ impl Relief {
             top_m,
             max_slope,
             step_m: 0.25 * radius_m * dlat,
-            horizon_rad: None,
+            horizon_sin: None,
             horizon_sin_max: -1.0,
+            horizon_on_dem_grid: false,
         })
     }
 
     /// The same relief with a horizon map: elevation angles [rad] of the local horizon above
     /// the sphere's horizontal plane.
-    pub fn with_horizon(self, horizon_rad: maps::Map) -> Relief {
+    pub fn with_horizon(self, horizon_rad: maps::Map) -> Result<Relief, maps::MapError> {
         let top = horizon_rad.values.iter().fold(f32::MIN, |a, &v| a.max(v)) as f64;
-        Relief {
+        let sines: Vec<f64> = horizon_rad
+            .values
+            .iter()
+            .map(|&v| (v as f64).clamp(-1.5, 1.5).sin())
+            .collect();
+        let on_grid = horizon_rad.same_grid(&self.heights_m);
+        let horizon_sin = horizon_rad.with_values(sines)?;
+        Ok(Relief {
             horizon_sin_max: top.clamp(-1.5, 1.5).sin(),
-            horizon_rad: Some(std::sync::Arc::new(horizon_rad)),
+            horizon_on_dem_grid: on_grid,
+            horizon_sin: Some(std::sync::Arc::new(horizon_sin)),
             ..self
-        }
-    }
-
-    /// The sine of the local horizon's elevation over the unit direction `up`, from the
-    /// horizon map (None without one or where it has no value). The elevation is measured from
-    /// the local tangent plane, normal to the DEM's normal (the paper's frame O): on
-    /// `config/moon.toml` that reading catches 88 % of the pixels ray marching shadows, the
-    /// sphere's tangent plane 69 %. A direction whose cosine with the DEM normal is below it
-    /// is hidden (the fast alternative to [`Relief::occluded`]).
-    #[inline]
-    pub fn horizon_sin(&self, up: DVec3) -> Option<f64> {
-        let map = self.horizon_rad.as_ref()?;
-        let (lon, lat) = crate::geometry::lon_lat(up);
-        map.sample(lon, lat).map(f64::sin)
+        })
     }
 
     /// The sine of the highest horizon in the map: directions rising more steeply than that
@@ -214,12 +212,30 @@ impl Relief {
     /// The surface normal (body frame) over the unit direction `up` from the centre.
     #[inline]
     pub fn normal(&self, up: DVec3) -> DVec3 {
+        self.normal_and_horizon(up, false).0
+    }
+
+    /// The surface normal over `up` and, when `horizon` is asked and there is a horizon map,
+    /// the sine of the local horizon's elevation there (None where the map has no value).
+    /// One longitude/latitude and, when the maps share a grid (the shared lunar DEM and
+    /// horizon map do), one bilinear lookup for all three values.
+    ///
+    /// The horizon's elevation is measured from the local tangent plane, normal to the DEM's
+    /// normal (the paper's frame O): on `config/moon.toml` that reading catches 88 % of the
+    /// pixels ray marching shadows, the sphere's tangent plane 69 %. A direction whose cosine
+    /// with the DEM normal is below the sine is hidden (the fast alternative to
+    /// [`Relief::occluded`]).
+    #[inline]
+    pub fn normal_and_horizon(&self, up: DVec3, horizon: bool) -> (DVec3, Option<f64>) {
         let (lon, lat) = crate::geometry::lon_lat(up);
-        let (Some(se), Some(sn)) = (
-            self.slope_east.sample(lon, lat),
-            self.slope_north.sample(lon, lat),
-        ) else {
-            return up;
+        let Some(taps) = self.slope_east.taps(lon, lat) else {
+            return (up, None);
+        };
+        let (se, sn) = (self.slope_east.at(&taps), self.slope_north.at(&taps));
+        let horizon_sin = match (&self.horizon_sin, horizon) {
+            (Some(h), true) if self.horizon_on_dem_grid => Some(h.at(&taps)),
+            (Some(h), true) => h.sample(lon, lat),
+            _ => None,
         };
         let e = DVec3::Z.cross(up);
         let east = if e.length_squared() > 1e-24 {
@@ -228,7 +244,7 @@ impl Relief {
             DVec3::Y
         };
         let north = up.cross(east);
-        (up - se * east - sn * north).normalize()
+        ((up - se * east - sn * north).normalize(), horizon_sin)
     }
 }
 

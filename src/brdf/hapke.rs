@@ -118,8 +118,9 @@ impl Hapke {
     pub fn phase_function(&self, cos_g: f64) -> f64 {
         let (b, c) = (self.p.b, self.p.c);
         let num = 1.0 - b * b;
-        let forward = num / (1.0 + 2.0 * b * cos_g + b * b).powf(1.5);
-        let back = num / (1.0 - 2.0 * b * cos_g + b * b).powf(1.5);
+        let pow_1_5 = |x: f64| x * x.sqrt();
+        let forward = num / pow_1_5(1.0 + 2.0 * b * cos_g + b * b);
+        let back = num / pow_1_5(1.0 - 2.0 * b * cos_g + b * b);
         (1.0 - c) * forward + c * back
     }
 }

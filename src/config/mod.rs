@@ -546,7 +546,11 @@ impl Validator<'_> {
                 })?;
                 Some(match &b.horizon_map {
                     None => relief,
-                    Some(h) => relief.with_horizon(self.map("body.horizon_map", h)?),
+                    Some(h) => relief
+                        .with_horizon(self.map("body.horizon_map", h)?)
+                        .or_else(|e| {
+                            self.err("body.horizon_map", h.path.as_str(), &e.to_string())
+                        })?,
                 })
             }
         };

@@ -254,7 +254,7 @@ fn linear(a: DVec3, lo: &LonMoments, la: &LatMoments) -> f64 {
 #[inline(always)]
 fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let (p, n) = view.shape.surface(dir);
-    let n = view.shading_normal(dir, n);
+    let (n, horizon_sin) = view.shading_normal(dir, n);
     let to_c = view.cam_csf - p;
     let to_s = view.sun_csf - p;
     let (dc2, ds2) = (to_c.length_squared(), to_s.length_squared());
@@ -262,7 +262,7 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let cos_eps = view.to_camera(p).z / dc;
     let mut g = Local::new(n, to_s / ds, to_c / dc);
     // A shadowed or hidden point contributes nothing (its cosine is taken as 0).
-    view.shadow(dir, p, &mut g);
+    view.shadow(dir, p, horizon_sin, &mut g);
     (g, cos_eps / (ds2 * dc2))
 }
 

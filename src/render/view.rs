@@ -68,22 +68,27 @@ impl<'a> View<'a> {
         }
     }
 
-    /// The normal the BRDF sees at the surface over CSF unit direction `dir`: the shape's,
-    /// tilted by the relief when there is one.
+    /// The normal the BRDF sees at the surface over CSF unit direction `dir`: the shape's
+    /// `n`, tilted by the relief when there is one; with horizon-map shadows, also the sine of
+    /// the local horizon there (for [`View::shadow`]).
     #[inline]
-    pub fn shading_normal(&self, dir: DVec3, n: DVec3) -> DVec3 {
+    pub fn shading_normal(&self, dir: DVec3, n: DVec3) -> (DVec3, Option<f64>) {
         match self.relief {
-            Some(r) => self.csf_from_body * r.normal(self.csf.body_from_csf * dir),
-            None => n,
+            Some(r) => {
+                let horizon = self.shadows == SelfShadowing::HorizonMap;
+                let (n_body, h) = r.normal_and_horizon(self.csf.body_from_csf * dir, horizon);
+                (self.csf_from_body * n_body, h)
+            }
+            None => (n, None),
         }
     }
 
     /// Hides what the relief hides at the surface point `p` over CSF unit direction `dir`:
     /// `g.mu0` (the Sun) and `g.mu` (the camera) become 0 where the terrain blocks them
-    /// (ray marching), or where they rise less than the horizon map's horizon. Nothing
-    /// without self-shadowing.
+    /// (ray marching), or where they rise less than the horizon map's horizon
+    /// (`horizon_sin` from [`View::shading_normal`]). Nothing without self-shadowing.
     #[inline]
-    pub fn shadow(&self, dir: DVec3, p: DVec3, g: &mut Local) {
+    pub fn shadow(&self, dir: DVec3, p: DVec3, horizon_sin: Option<f64>, g: &mut Local) {
         let Some(r) = self.relief else {
             return;
         };
@@ -103,7 +108,7 @@ impl<'a> View<'a> {
                 let top = r.horizon_sin_max();
                 let low = |mu: f64| mu > 0.0 && mu < top;
                 if (low(g.mu0) || low(g.mu))
-                    && let Some(h) = r.horizon_sin(self.csf.body_from_csf * dir)
+                    && let Some(h) = horizon_sin
                 {
                     if g.mu0 < h {
                         g.mu0 = 0.0;

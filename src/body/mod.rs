@@ -1,20 +1,25 @@
 //! The body being rendered: its shape and its reflectance.
 //!
-//! Shapes sit behind [`Shape`] so that later shapes (ellipsoids, DEM-displaced spheres,
-//! triangle meshes) stand beside the sphere without touching the renderer's steps: the
+//! Shapes sit behind [`Shape`] so that shapes (the sphere, the triaxial ellipsoid, later
+//! triangle meshes) stand beside each other without touching the renderer's steps: the
 //! renderer asks a shape for its bounding radius, the surface point and normal in a direction
-//! from the centre, and the first intersection of a ray.
+//! from the centre (the area element follows from them), and the first intersection of a ray;
+//! only the sphere has an exact lit-and-visible region and closed-form integrals.
 
+pub mod ellipsoid;
 pub mod maps;
 pub mod sphere;
 
 use crate::brdf::Brdf;
+pub use ellipsoid::Ellipsoid;
 use glam::DVec3;
 pub use sphere::{LitVisible, Sphere};
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum Shape {
     Sphere(Sphere),
+    /// A triaxial ellipsoid (semi-axes along the body axes).
+    Ellipsoid(Ellipsoid),
 }
 
 impl Shape {
@@ -22,6 +27,7 @@ impl Shape {
     pub fn bounding_radius_m(&self) -> f64 {
         match self {
             Shape::Sphere(s) => s.radius_m,
+            Shape::Ellipsoid(e) => e.max_axis_m(),
         }
     }
 
@@ -29,14 +35,23 @@ impl Shape {
     pub fn inner_radius_m(&self) -> f64 {
         match self {
             Shape::Sphere(s) => s.radius_m,
+            Shape::Ellipsoid(e) => e.min_axis_m(),
         }
     }
 
-    /// Surface point [m] and outward unit normal in the direction `dir` (unit, from the centre).
+    /// Whether the shape looks the same in every frame centred on the body (a sphere): its
+    /// surface may then be asked in the CSF directly.
+    pub fn is_round(&self) -> bool {
+        matches!(self, Shape::Sphere(_))
+    }
+
+    /// Surface point [m] and outward unit normal in the direction `dir` (unit, from the
+    /// centre), in the body frame (in any body-centred frame for a round shape).
     #[inline(always)]
     pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
         match self {
             Shape::Sphere(s) => (dir * s.radius_m, dir),
+            Shape::Ellipsoid(e) => e.surface(dir),
         }
     }
 
@@ -45,6 +60,7 @@ impl Shape {
     pub fn intersect(&self, origin: DVec3, dir: DVec3) -> Option<f64> {
         match self {
             Shape::Sphere(s) => crate::geometry::ray_sphere(origin, dir, s.radius_m),
+            Shape::Ellipsoid(e) => e.intersect(origin, dir),
         }
     }
 
@@ -54,6 +70,7 @@ impl Shape {
     pub fn lit_visible(&self, sun_m: DVec3, camera_m: DVec3) -> Option<LitVisible> {
         match self {
             Shape::Sphere(s) => Some(LitVisible::new(s.radius_m, sun_m, camera_m)),
+            Shape::Ellipsoid(_) => None,
         }
     }
 
@@ -61,6 +78,7 @@ impl Shape {
     pub fn contains(&self, p: DVec3) -> bool {
         match self {
             Shape::Sphere(s) => p.length() < s.radius_m,
+            Shape::Ellipsoid(e) => e.contains(p),
         }
     }
 }

@@ -398,8 +398,42 @@ impl Validator<'_> {
     }
 
     fn body(&self, b: &RawBody) -> R<Body> {
-        self.choice("body.shape", &b.shape, &["sphere"])?;
-        let radius_m = self.positive("body.radius_m", b.radius_m)?;
+        let (shape, radius_m) =
+            match self.choice("body.shape", &b.shape, &["sphere", "ellipsoid"])? {
+                "ellipsoid" => {
+                    let axes = self.need(
+                        "body.semi_axes_m",
+                        b.semi_axes_m,
+                        "required for shape = \"ellipsoid\": [a, b, c] along body X, Y, Z",
+                    )?;
+                    for (k, v) in axes.iter().enumerate() {
+                        self.positive(&format!("body.semi_axes_m[{k}]"), *v)?;
+                    }
+                    if b.radius_m.is_some() {
+                        return self.err(
+                            "body.radius_m",
+                            b.radius_m,
+                            "absent for an ellipsoid (its size is semi_axes_m)",
+                        );
+                    }
+                    if b.dem_map.is_some() {
+                        return self.err(
+                            "body.dem_map",
+                            "on an ellipsoid",
+                            "a sphere (DEM heights are above body.radius_m)",
+                        );
+                    }
+                    let e = crate::body::Ellipsoid {
+                        semi_axes_m: glam::DVec3::from_array(axes),
+                    };
+                    (Shape::Ellipsoid(e), e.max_axis_m())
+                }
+                _ => {
+                    let r = self.need("body.radius_m", b.radius_m, "required for a sphere")?;
+                    let radius_m = self.positive("body.radius_m", r)?;
+                    (Shape::Sphere(Sphere { radius_m }), radius_m)
+                }
+            };
         let unit = |key: &str, v: Option<f64>, default: f64| {
             self.in_range(key, v.unwrap_or(default), 0.0, 1.0)
         };
@@ -563,7 +597,7 @@ impl Validator<'_> {
         }
         Ok(Body {
             name: b.name.clone(),
-            shape: Shape::Sphere(Sphere { radius_m }),
+            shape,
             brdf,
             albedo_map,
             relief,

@@ -39,7 +39,10 @@ pub struct RawBody {
     pub name: String,
     #[serde(default = "default_shape")]
     pub shape: String,
-    pub radius_m: f64,
+    /// The sphere's radius (and a DEM's reference) [m].
+    pub radius_m: Option<f64>,
+    /// The ellipsoid's semi-axes along body +X, +Y, +Z [m].
+    pub semi_axes_m: Option<[f64; 3]>,
     pub brdf: String,
     pub albedo: f64,
     pub albedo_type: String,

@@ -21,6 +21,14 @@ pub struct Bounds {
     pub lat: (f64, f64),
 }
 
+impl Bounds {
+    /// Every direction from the centre.
+    pub const WHOLE: Bounds = Bounds {
+        lon: (-std::f64::consts::PI, std::f64::consts::PI),
+        lat: (-std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_2),
+    };
+}
+
 /// Limits of the region the camera can see, or `None` for a black frame.
 pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
     let r = view.shape.bounding_radius_m();

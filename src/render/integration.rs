@@ -144,6 +144,9 @@ impl Method {
     /// normals to be the shape's own (no DEM tilting them).
     pub fn resolve(integration: Integration, body: &Body) -> Result<Method, NoClosedForm> {
         let form = match (&body.relief, body.brdf.exact_form()) {
+            _ if !body.shape.is_round() => Err(NoClosedForm {
+                reason: "on a non-spherical shape (the closed forms are the sphere's)".into(),
+            }),
             (None, Some(f)) => Ok(f),
             (Some(_), _) => Err(NoClosedForm {
                 reason: "with a DEM (it tilts the normals)".into(),
@@ -253,7 +256,8 @@ fn linear(a: DVec3, lo: &LonMoments, la: &LatMoments) -> f64 {
 /// A surface sample seen from the camera: local geometry and `cos(eps) / (d_sun^2 d_cam^2)`.
 #[inline(always)]
 fn sample(view: &View, dir: DVec3) -> (Local, f64) {
-    let (p, n) = view.shape.surface(dir);
+    let (p, n) = view.surface(dir);
+    let area = view.area_factor(dir, p, n);
     let (n, horizon_sin) = view.shading_normal(dir, n);
     let to_c = view.cam_csf - p;
     let to_s = view.sun_csf - p;
@@ -263,7 +267,7 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let mut g = Local::new(n, to_s / ds, to_c / dc);
     // A shadowed or hidden point contributes nothing (its cosine is taken as 0).
     view.shadow(dir, p, horizon_sin, &mut g);
-    (g, cos_eps / (ds2 * dc2))
+    (g, area * cos_eps / (ds2 * dc2))
 }
 
 /// Trapezoidal rule over quadrangle `(i, k)` with clamped cosines.

@@ -288,7 +288,20 @@ fn render_in_pool(
     let mut t = StageTimings::default();
 
     let t0 = Instant::now();
-    let bounds = bounding::bound(&view, settings.bounding_tolerance_rad);
+    // A non-spherical shape is sampled over every direction from its centre, uniformly (the
+    // visible-cap bounds and the projected-uniform spacing are the sphere's); pruning keeps
+    // what is lit, visible and in the FOV.
+    let round = scene.body.shape.is_round();
+    let bounds = if round {
+        bounding::bound(&view, settings.bounding_tolerance_rad)
+    } else {
+        Some(bounding::Bounds::WHOLE)
+    };
+    let grid_sampling = if round {
+        settings.sampling
+    } else {
+        settings::Sampling::Uniform
+    };
     t.bounding = ms(t0);
 
     let mut pl_image = vec![0.0; width * height];
@@ -297,20 +310,8 @@ fn render_in_pool(
         let plan = sampling::plan(&view, &bounds, settings)?;
         let alpha = view.csf.phase_rad;
         let trig = GridTrig::new(
-            sampling::edges(
-                bounds.lon.0,
-                bounds.lon.1,
-                plan.n_lon,
-                settings.sampling,
-                alpha,
-            ),
-            sampling::edges(
-                bounds.lat.0,
-                bounds.lat.1,
-                plan.n_lat,
-                settings.sampling,
-                0.0,
-            ),
+            sampling::edges(bounds.lon.0, bounds.lon.1, plan.n_lon, grid_sampling, alpha),
+            sampling::edges(bounds.lat.0, bounds.lat.1, plan.n_lat, grid_sampling, 0.0),
         );
         stats.grid_lon = plan.n_lon;
         stats.grid_lat = plan.n_lat;

@@ -18,7 +18,7 @@ pub fn project_midpoints(view: &View, trig: &GridTrig, keep: &[u8], out: &mut Ve
     out.par_chunks_mut(nl).enumerate().for_each(|(k, row)| {
         for (i, o) in row.iter_mut().enumerate() {
             if keep[k * nl + i] != PRUNED {
-                let p = view.shape.surface(trig.mid_dir(i, k)).0;
+                let p = view.surface(trig.mid_dir(i, k)).0;
                 *o = view.pixel(view.to_camera(p)).unwrap_or(NAN2);
             }
         }
@@ -32,7 +32,7 @@ pub fn project_vertices(view: &View, trig: &GridTrig, out: &mut Vec<[f64; 2]>) {
     out.resize(nv * (trig.n_lat() + 1), NAN2);
     out.par_chunks_mut(nv).enumerate().for_each(|(k, row)| {
         for (i, o) in row.iter_mut().enumerate() {
-            let p = view.shape.surface(trig.vertex_dir(i, k)).0;
+            let p = view.surface(trig.vertex_dir(i, k)).0;
             *o = view.pixel(view.to_camera(p)).unwrap_or(NAN2);
         }
     });

@@ -19,13 +19,13 @@ pub const BOUNDARY: u8 = 2;
 /// Classifies one quadrangle from the unit directions of its midpoint and corners.
 #[inline(always)]
 pub fn classify(view: &View, mid: DVec3, corners: [DVec3; 4]) -> u8 {
-    let (p_mid, _) = view.shape.surface(mid);
+    let (p_mid, _) = view.surface(mid);
     if !view.in_fov(view.to_camera(p_mid)) {
         return PRUNED;
     }
     let (mut vis_any, mut lit_any, mut vis_all, mut lit_all) = (false, false, true, true);
     for dir in std::iter::once(mid).chain(corners) {
-        let (p, n) = view.shape.surface(dir);
+        let (p, n) = view.surface(dir);
         let vis = n.dot(view.cam_csf - p) > 0.0;
         let lit = n.dot(view.sun_csf - p) > 0.0;
         vis_any |= vis;

@@ -134,7 +134,7 @@ pub fn plan(view: &View, bounds: &Bounds, settings: &Settings) -> Result<Plan, T
             }
             let px: Vec<Option<[f64; 2]>> = corners
                 .iter()
-                .map(|&d| view.pixel(view.to_camera(view.shape.surface(d).0)))
+                .map(|&d| view.pixel(view.to_camera(view.surface(d).0)))
                 .collect();
             let (Some(a), Some(b), Some(c), Some(d)) = (px[0], px[1], px[2], px[3]) else {
                 continue;

@@ -121,6 +121,29 @@ impl<'a> View<'a> {
         }
     }
 
+    /// Surface point [m] and outward unit normal (CSF) over the CSF unit direction `dir`: a
+    /// round shape is asked directly, another one in the body frame.
+    #[inline(always)]
+    pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
+        if self.shape.is_round() {
+            return self.shape.surface(dir);
+        }
+        let (p, n) = self.shape.surface(self.csf.body_from_csf * dir);
+        (self.csf_from_body * p, self.csf_from_body * n)
+    }
+
+    /// The surface area per unit solid angle at the point `p` with normal `n` over the unit
+    /// direction `dir`, relative to the bounding sphere's `R^2`: `(|p|/R)^2 / (n . dir)`
+    /// (1 on a sphere).
+    #[inline(always)]
+    pub fn area_factor(&self, dir: DVec3, p: DVec3, n: DVec3) -> f64 {
+        if self.shape.is_round() {
+            return 1.0;
+        }
+        let r = self.shape.bounding_radius_m();
+        p.length_squared() / (r * r) / n.dot(dir)
+    }
+
     /// Camera-frame coordinates of a CSF point.
     #[inline(always)]
     pub fn to_camera(&self, p_csf: DVec3) -> DVec3 {

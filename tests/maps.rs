@@ -115,7 +115,7 @@ fn with_dem(h: impl Fn(f64) -> f64) -> (Vec<f64>, Vec<f64>, usize) {
         })
         .collect();
     let map = Map::from_values(Path::new("dem"), w, hgt, values, &Encoding::default()).unwrap();
-    relief.scene.body.relief = Some(optistim::body::Relief::new(map, R_MOON).unwrap());
+    relief.scene.body.relief = Some(optistim::body::Relief::new(map, R_MOON, false).unwrap());
     let n = plain.scene.camera.intrinsics.width_px as usize;
     (total(&plain).1, total(&relief).1, n)
 }

@@ -1,4 +1,5 @@
-//! Non-spherical bodies (issue 3, item 4): a triaxial ellipsoid.
+//! Non-spherical bodies (issue 3, item 4): a triaxial ellipsoid, and DEMs that displace the
+//! surface, given as heights or as radii from the centre.
 //!
 //! At opposition a Lommel-Seeliger body reflects in proportion to its projected area (its
 //! `f_r mu0 mu` is `w/(4 pi) mu/2` there, and `mu dA` is the projected area element), so an
@@ -139,5 +140,152 @@ fn ellipsoid_keys_are_checked() {
             assert!(e.to_string().contains("non-spherical"), "{e}")
         }
         other => panic!("exact on an ellipsoid: {other:?}"),
+    }
+}
+
+/// A DEM given as radius from the centre (Vesta-like), displacing the surface: the radii of
+/// an oblate spheroid (a, a, c) on a 720 x 360 grid render as the analytic ellipsoid.
+#[test]
+fn an_absolute_radius_dem_renders_as_the_shape_it_describes() {
+    use optistim::body::maps::{Encoding, Map};
+    use optistim::body::{Relief, Shape};
+    let (a, c) = (1.25 * R_MOON, 0.8 * R_MOON);
+    let spec = SceneSpec {
+        albedo: 0.2,
+        camera_m: [60.0 * R_MOON, 35.0 * R_MOON, 20.0 * R_MOON],
+        sun_m: [AU, 0.3 * AU, 0.0],
+        resolution: [512, 512],
+        focal_m: 0.06,
+        render: "points_per_pixel = 1.0\nintegration = \"trapezoidal\"",
+        ..Default::default()
+    };
+    let sphere = spec.config();
+    // The ellipsoid, analytic.
+    let mut ell = sphere.clone();
+    ell.scene.body.shape = Shape::Ellipsoid(optistim::body::Ellipsoid {
+        semi_axes_m: glam::DVec3::new(a, a, c),
+    });
+    // The same as radii from the centre, heights above R after the config's conversion.
+    let (w, h) = (720usize, 360usize);
+    let heights = (0..w * h)
+        .map(|i| {
+            let lat = std::f64::consts::FRAC_PI_2
+                - ((i / w) as f64 + 0.5) * std::f64::consts::PI / h as f64;
+            let r = 1.0 / ((lat.cos() / a).powi(2) + (lat.sin() / c).powi(2)).sqrt();
+            r - R_MOON
+        })
+        .collect();
+    let map = Map::from_values(
+        std::path::Path::new("radii"),
+        w,
+        h,
+        heights,
+        &Encoding::default(),
+    )
+    .unwrap();
+    let mut dem = sphere.clone();
+    dem.scene.body.relief = Some(Relief::new(map, R_MOON, true).unwrap());
+
+    let render = |cfg: &optistim::config::Config| {
+        let f = Renderer::new(0)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &cfg.settings)
+            .unwrap();
+        f.pl
+    };
+    let (pe, pd, ps) = (render(&ell), render(&dem), render(&sphere));
+    let sum = |v: &[f64]| v.iter().sum::<f64>();
+    let (te, td, ts) = (sum(&pe), sum(&pd), sum(&ps));
+    let peak = pe.iter().cloned().fold(0.0, f64::max);
+    let mut rel: Vec<f64> = pe
+        .iter()
+        .zip(&pd)
+        .filter(|(e, _)| **e > 0.05 * peak)
+        .map(|(e, d)| (e - d).abs() / e)
+        .collect();
+    rel.sort_by(f64::total_cmp);
+    let (median, p95) = (rel[rel.len() / 2], rel[rel.len() * 95 / 100]);
+    let lit = |v: &[f64]| v.iter().filter(|&&x| x > 0.05 * peak).count();
+    println!(
+        "DEM of radii vs ellipsoid: total {:.2e} (the sphere is {:.2e} off), lit px {} vs {} \
+         (sphere {}), pixels median {median:.2e} p95 {p95:.2e}",
+        td / te - 1.0,
+        ts / te - 1.0,
+        lit(&pd),
+        lit(&pe),
+        lit(&ps)
+    );
+    assert!((td / te - 1.0).abs() < 5e-4, "{td} vs {te}");
+    assert!(
+        (ts / te - 1.0).abs() > 0.05,
+        "the test must tell the shapes apart"
+    );
+    assert!(median < 1e-3 && p95 < 5e-3, "{median} {p95}");
+    assert!((lit(&pd) as f64 / lit(&pe) as f64 - 1.0).abs() < 0.01);
+}
+
+/// A constant DEM of height H, displacing, is the sphere of R + H; through the config, given
+/// as radii (dem_values = "radius") in a float32 TIFF.
+#[test]
+fn a_displacing_dem_from_a_tiff_of_radii_is_the_bigger_sphere() {
+    let dir = std::env::temp_dir().join(format!("optistim-dem-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let tif = dir.join("radii.tif");
+    let r2 = 1.1 * R_MOON;
+    {
+        let f = std::fs::File::create(&tif).unwrap();
+        let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
+        let data = vec![r2 as f32; 64 * 32];
+        enc.write_image::<tiff::encoder::colortype::Gray32Float>(64, 32, &data)
+            .unwrap();
+    }
+    let spec = SceneSpec {
+        albedo: 0.2,
+        camera_m: [50.0 * R_MOON, 30.0 * R_MOON, 0.0],
+        render: "integration = \"trapezoidal\"",
+        ..Default::default()
+    };
+    let base = spec.toml();
+    let dem = base.replacen(
+        "albedo_type = \"normal\"\n",
+        &format!(
+            "albedo_type = \"normal\"\ndem_map = {{ path = {:?} }}\ndem_values = \"radius\"\ndisplacement = true\n",
+            tif.display().to_string()
+        ),
+        1,
+    );
+    let big = base.replacen(
+        &format!("radius_m = {R_MOON}\n"),
+        &format!("radius_m = {r2}\n"),
+        1,
+    );
+    let total = |text: &str| {
+        let cfg = optistim::config::parse(text, "dem.toml").unwrap_or_else(|e| panic!("{e}"));
+        let f = Renderer::new(0)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &cfg.settings)
+            .unwrap();
+        f.pl.iter().sum::<f64>()
+    };
+    let (td, tb, ts) = (total(&dem), total(&big), total(&base));
+    println!(
+        "R + H sphere from a DEM: {:.2e} (R sphere {:.2e})",
+        td / tb - 1.0,
+        ts / tb - 1.0
+    );
+    assert!((td / tb - 1.0).abs() < 1e-4, "{td} vs {tb}");
+    assert!((ts / tb - 1.0).abs() > 0.1);
+    std::fs::remove_dir_all(&dir).ok();
+    // Displacement without a DEM is refused.
+    let bad = base.replacen(
+        "albedo_type = \"normal\"\n",
+        "albedo_type = \"normal\"\ndisplacement = true\n",
+        1,
+    );
+    match optistim::config::parse(&bad, "s.toml") {
+        Err(optistim::config::ConfigError::Invalid { key, .. }) => {
+            assert_eq!(key, "body.displacement")
+        }
+        other => panic!("{other:?}"),
     }
 }

@@ -119,11 +119,29 @@ pub struct Relief {
     pub horizon_sin: Option<std::sync::Arc<maps::Map>>,
     horizon_sin_max: f64,
     horizon_on_dem_grid: bool,
+    /// Whether the heights displace the surface (`r = R + h`).
+    displaces: bool,
+}
+
+/// The DEM at one point: see [`Relief::at`].
+#[derive(Clone, Copy, Debug)]
+pub struct ReliefSample {
+    /// Height above the reference radius [m] (0 without displacement).
+    pub height_m: f64,
+    /// The surface normal (body frame).
+    pub normal: DVec3,
+    pub horizon_sin: Option<f64>,
 }
 
 impl Relief {
     /// Slopes of `heights_m` (a DEM in metres above a sphere of `radius_m`).
-    pub fn new(heights_m: maps::Map, radius_m: f64) -> Result<Relief, maps::MapError> {
+    /// With `displaces`, the surface is moved to `R + h` and the slopes are taken along arcs
+    /// at that radius, which makes the normals exact for the displaced surface.
+    pub fn new(
+        heights_m: maps::Map,
+        radius_m: f64,
+        displaces: bool,
+    ) -> Result<Relief, maps::MapError> {
         let (w, h) = (heights_m.width, heights_m.height);
         let v = |r: usize, c: usize| heights_m.values[r * w + c] as f64;
         let (dlon, dlat) = heights_m.spacing_rad();
@@ -141,9 +159,14 @@ impl Relief {
                     let (cw, ce) = (c.saturating_sub(1), (c + 1).min(w - 1));
                     (cw, ce, ce - cw)
                 };
-                let metres_e = radius_m * lat.cos().max(1e-6) * texels as f64 * dlon;
+                let arc_r = if displaces {
+                    radius_m + v(r, c)
+                } else {
+                    radius_m
+                };
+                let metres_e = arc_r * lat.cos().max(1e-6) * texels as f64 * dlon;
                 east.push((v(r, ce) - v(r, cw)) / metres_e);
-                let metres_n = radius_m * (rs - rn).max(1) as f64 * dlat;
+                let metres_n = arc_r * (rs - rn).max(1) as f64 * dlat;
                 north.push((v(rn, c) - v(rs, c)) / metres_n);
             }
         }
@@ -165,6 +188,7 @@ impl Relief {
             horizon_sin: None,
             horizon_sin_max: -1.0,
             horizon_on_dem_grid: false,
+            displaces,
         })
     }
 
@@ -230,13 +254,13 @@ impl Relief {
     /// The surface normal (body frame) over the unit direction `up` from the centre.
     #[inline]
     pub fn normal(&self, up: DVec3) -> DVec3 {
-        self.normal_and_horizon(up, false).0
+        self.at(up, false).normal
     }
 
-    /// The surface normal over `up` and, when `horizon` is asked and there is a horizon map,
-    /// the sine of the local horizon's elevation there (None where the map has no value).
-    /// One longitude/latitude and, when the maps share a grid (the shared lunar DEM and
-    /// horizon map do), one bilinear lookup for all three values.
+    /// The DEM over `up` (body frame): height, normal and, when `horizon` is asked and there
+    /// is a horizon map, the sine of the local horizon's elevation there. One
+    /// longitude/latitude and, when the maps share a grid (the DEM's slopes always do; the
+    /// shared lunar horizon map does), one bilinear tap set for every value.
     ///
     /// The horizon's elevation is measured from the local tangent plane, normal to the DEM's
     /// normal (the paper's frame O): on `config/moon.toml` that reading catches 88 % of the
@@ -244,16 +268,25 @@ impl Relief {
     /// with the DEM normal is below the sine is hidden (the fast alternative to
     /// [`Relief::occluded`]).
     #[inline]
-    pub fn normal_and_horizon(&self, up: DVec3, horizon: bool) -> (DVec3, Option<f64>) {
+    pub fn at(&self, up: DVec3, horizon: bool) -> ReliefSample {
         let (lon, lat) = crate::geometry::lon_lat(up);
         let Some(taps) = self.slope_east.taps(lon, lat) else {
-            return (up, None);
+            return ReliefSample {
+                height_m: 0.0,
+                normal: up,
+                horizon_sin: None,
+            };
         };
         let (se, sn) = (self.slope_east.at(&taps), self.slope_north.at(&taps));
         let horizon_sin = match (&self.horizon_sin, horizon) {
             (Some(h), true) if self.horizon_on_dem_grid => Some(h.at(&taps)),
             (Some(h), true) => h.sample(lon, lat),
             _ => None,
+        };
+        let height_m = if self.displaces {
+            self.heights_m.at(&taps)
+        } else {
+            0.0
         };
         let e = DVec3::Z.cross(up);
         let east = if e.length_squared() > 1e-24 {
@@ -262,7 +295,32 @@ impl Relief {
             DVec3::Y
         };
         let north = up.cross(east);
-        ((up - se * east - sn * north).normalize(), horizon_sin)
+        ReliefSample {
+            height_m,
+            normal: (up - se * east - sn * north).normalize(),
+            horizon_sin,
+        }
+    }
+
+    /// The sphere's radius the heights are measured from [m].
+    pub fn reference_radius_m(&self) -> f64 {
+        self.radius_m
+    }
+
+    /// Whether the DEM displaces the surface (else it only tilts the normals).
+    pub fn displaces(&self) -> bool {
+        self.displaces
+    }
+
+    /// The radius of a sphere containing the displaced surface [m] (the reference radius
+    /// without displacement).
+    pub fn bounding_radius_m(&self) -> f64 {
+        self.radius_m
+            + if self.displaces {
+                self.top_m.max(0.0)
+            } else {
+                0.0
+            }
     }
 }
 
@@ -320,7 +378,7 @@ mod tests {
             ..Default::default()
         };
         let dem = Map::from_values(std::path::Path::new("wall"), n, n, values, &enc).unwrap();
-        let relief = Relief::new(dem, radius).unwrap();
+        let relief = Relief::new(dem, radius, false).unwrap();
         let elevation = 10f64.to_radians();
         let cell_m = radius * cell_deg.to_radians();
         // Walk west from the wall's foot; the shadow's end is the last shadowed point.

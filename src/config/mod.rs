@@ -570,14 +570,31 @@ impl Validator<'_> {
         let relief = match &b.dem_map {
             None => None,
             Some(m) => {
-                let heights = self.map("body.dem_map", m)?;
-                let relief = crate::body::Relief::new(heights, radius_m).or_else(|e| {
-                    self.err(
-                        "body.dem_map",
-                        m.path.as_str(),
-                        &format!("a usable DEM ({e})"),
-                    )
-                })?;
+                let dem = self.map("body.dem_map", m)?;
+                let heights = match b.dem_values.as_deref().unwrap_or("height") {
+                    "height" => dem,
+                    "radius" => {
+                        let h = dem.values.iter().map(|&v| v as f64 - radius_m).collect();
+                        dem.with_values(h).or_else(|e| {
+                            self.err("body.dem_map", m.path.as_str(), &e.to_string())
+                        })?
+                    }
+                    other => {
+                        return self.err(
+                            "body.dem_values",
+                            other,
+                            "height (above radius_m) or radius (from the centre)",
+                        );
+                    }
+                };
+                let relief =
+                    crate::body::Relief::new(heights, radius_m, b.displacement).or_else(|e| {
+                        self.err(
+                            "body.dem_map",
+                            m.path.as_str(),
+                            &format!("a usable DEM ({e})"),
+                        )
+                    })?;
                 Some(match &b.horizon_map {
                     None => relief,
                     Some(h) => relief
@@ -588,6 +605,14 @@ impl Validator<'_> {
                 })
             }
         };
+        if b.dem_map.is_none() && (b.displacement || b.dem_values.is_some()) {
+            let key = if b.displacement {
+                "body.displacement"
+            } else {
+                "body.dem_values"
+            };
+            return self.err(key, "without body.dem_map", "a DEM to apply to");
+        }
         if b.horizon_map.is_some() && b.dem_map.is_none() {
             return self.err(
                 "body.horizon_map",

@@ -59,6 +59,12 @@ pub struct RawBody {
     pub dem_map: Option<RawMap>,
     /// Elevation angle of the local horizon [rad] per texel (needs `dem_map`).
     pub horizon_map: Option<RawMap>,
+    /// What the DEM's values are: `height` above `radius_m` (default) or `radius` from the
+    /// centre (a Vesta-like shape model).
+    pub dem_values: Option<String>,
+    /// Whether the DEM displaces the surface (default false: it only tilts the normals).
+    #[serde(default)]
+    pub displacement: bool,
 }
 
 /// A texture map and its encoding (`docs/scene.md`, `body::maps::Encoding`).

@@ -31,7 +31,7 @@ impl Bounds {
 
 /// Limits of the region the camera can see, or `None` for a black frame.
 pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
-    let r = view.shape.bounding_radius_m();
+    let r = view.bounding_radius_m();
     let d = view.cam_csf.length();
     let c_hat = view.cam_csf / d;
     let alpha = view.csf.phase_rad;

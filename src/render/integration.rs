@@ -256,9 +256,8 @@ fn linear(a: DVec3, lo: &LonMoments, la: &LatMoments) -> f64 {
 /// A surface sample seen from the camera: local geometry and `cos(eps) / (d_sun^2 d_cam^2)`.
 #[inline(always)]
 fn sample(view: &View, dir: DVec3) -> (Local, f64) {
-    let (p, n) = view.surface(dir);
-    let area = view.area_factor(dir, p, n);
-    let (n, horizon_sin) = view.shading_normal(dir, n);
+    let sp = view.surface_point(dir);
+    let (p, n, area) = (sp.p, sp.normal, sp.area);
     let to_c = view.cam_csf - p;
     let to_s = view.sun_csf - p;
     let (dc2, ds2) = (to_c.length_squared(), to_s.length_squared());
@@ -266,7 +265,7 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let cos_eps = view.to_camera(p).z / dc;
     let mut g = Local::new(n, to_s / ds, to_c / dc);
     // A shadowed or hidden point contributes nothing (its cosine is taken as 0).
-    view.shadow(dir, p, horizon_sin, &mut g);
+    view.shadow(dir, p, sp.horizon_sin, &mut g);
     (g, area * cos_eps / (ds2 * dc2))
 }
 
@@ -356,7 +355,7 @@ pub fn integrate(
     a_cam_m2: f64,
     pl: &mut Vec<f64>,
 ) -> f64 {
-    let clip = view.shape.lit_visible(view.sun_csf, view.cam_csf);
+    let clip = view.lit_visible();
     let nodes = Nodes::new(boundary_nodes.max(1));
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
     let r = view.shape.bounding_radius_m();

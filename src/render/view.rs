@@ -32,6 +32,18 @@ pub struct View<'a> {
     pub margin_px: f64,
 }
 
+/// The surface at one point, as the integrand needs it: see [`View::surface_point`].
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    /// CSF point [m].
+    pub p: DVec3,
+    /// The normal the BRDF sees (CSF).
+    pub normal: DVec3,
+    /// Area per solid angle relative to the shape's bounding `R^2`.
+    pub area: f64,
+    pub horizon_sin: Option<f64>,
+}
+
 impl<'a> View<'a> {
     pub fn new(
         intrinsics: &'a Intrinsics,
@@ -68,25 +80,47 @@ impl<'a> View<'a> {
         }
     }
 
-    /// The normal the BRDF sees at the surface over CSF unit direction `dir`: the shape's
-    /// `n`, tilted by the relief when there is one; with horizon-map shadows, also the sine of
-    /// the local horizon there (for [`View::shadow`]).
+    /// Everything the integrand needs at the surface over CSF unit direction `dir`: the point,
+    /// the normal the BRDF sees (the shape's, or the DEM's), the area per solid angle
+    /// ([`View::area_factor`]) and, with horizon-map shadows, the sine of the local horizon
+    /// (for [`View::shadow`]). One relief lookup.
     #[inline]
-    pub fn shading_normal(&self, dir: DVec3, n: DVec3) -> (DVec3, Option<f64>) {
-        match self.relief {
-            Some(r) => {
-                let horizon = self.shadows == SelfShadowing::HorizonMap;
-                let (n_body, h) = r.normal_and_horizon(self.csf.body_from_csf * dir, horizon);
-                (self.csf_from_body * n_body, h)
+    pub fn surface_point(&self, dir: DVec3) -> SurfacePoint {
+        let Some(r) = self.relief else {
+            let (p, n) = self.surface(dir);
+            return SurfacePoint {
+                p,
+                normal: n,
+                area: self.area_factor(dir, p, n),
+                horizon_sin: None,
+            };
+        };
+        let horizon = self.shadows == SelfShadowing::HorizonMap;
+        let at = r.at(self.csf.body_from_csf * dir, horizon);
+        let normal = self.csf_from_body * at.normal;
+        if r.displaces() {
+            let p = dir * (r.reference_radius_m() + at.height_m);
+            SurfacePoint {
+                p,
+                normal,
+                area: self.area_factor(dir, p, normal),
+                horizon_sin: at.horizon_sin,
             }
-            None => (n, None),
+        } else {
+            let (p, n) = self.surface(dir);
+            SurfacePoint {
+                p,
+                normal,
+                area: self.area_factor(dir, p, n),
+                horizon_sin: at.horizon_sin,
+            }
         }
     }
 
     /// Hides what the relief hides at the surface point `p` over CSF unit direction `dir`:
     /// `g.mu0` (the Sun) and `g.mu` (the camera) become 0 where the terrain blocks them
     /// (ray marching), or where they rise less than the horizon map's horizon
-    /// (`horizon_sin` from [`View::shading_normal`]). Nothing without self-shadowing.
+    /// (`horizon_sin` from [`View::surface_point`]). Nothing without self-shadowing.
     #[inline]
     pub fn shadow(&self, dir: DVec3, p: DVec3, horizon_sin: Option<f64>, g: &mut Local) {
         let Some(r) = self.relief else {
@@ -122,9 +156,15 @@ impl<'a> View<'a> {
     }
 
     /// Surface point [m] and outward unit normal (CSF) over the CSF unit direction `dir`: a
-    /// round shape is asked directly, another one in the body frame.
+    /// round shape is asked directly, another one in the body frame; a displacing DEM moves
+    /// the point to `R + h` and turns the normal to its own.
     #[inline(always)]
     pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
+        if let Some(r) = self.relief.filter(|r| r.displaces()) {
+            let at = r.at(self.csf.body_from_csf * dir, false);
+            let p = dir * (r.reference_radius_m() + at.height_m);
+            return (p, self.csf_from_body * at.normal);
+        }
         if self.shape.is_round() {
             return self.shape.surface(dir);
         }
@@ -132,16 +172,38 @@ impl<'a> View<'a> {
         (self.csf_from_body * p, self.csf_from_body * n)
     }
 
-    /// The surface area per unit solid angle at the point `p` with normal `n` over the unit
-    /// direction `dir`, relative to the bounding sphere's `R^2`: `(|p|/R)^2 / (n . dir)`
-    /// (1 on a sphere).
+    /// The surface area per unit solid angle at the point `p` with (geometric) normal `n` over
+    /// the unit direction `dir`, relative to the shape's bounding `R^2`:
+    /// `(|p|/R)^2 / (n . dir)` (1 on an undisplaced sphere).
     #[inline(always)]
     pub fn area_factor(&self, dir: DVec3, p: DVec3, n: DVec3) -> f64 {
-        if self.shape.is_round() {
+        if self.shape.is_round() && !self.displaced() {
             return 1.0;
         }
         let r = self.shape.bounding_radius_m();
-        p.length_squared() / (r * r) / n.dot(dir)
+        p.length_squared() / (r * r) / n.dot(dir).max(1e-9)
+    }
+
+    /// Whether a DEM displaces the surface.
+    #[inline(always)]
+    pub fn displaced(&self) -> bool {
+        self.relief.is_some_and(|r| r.displaces())
+    }
+
+    /// The radius of a sphere containing the surface as rendered (relief included) [m].
+    pub fn bounding_radius_m(&self) -> f64 {
+        match self.relief {
+            Some(r) if r.displaces() => r.bounding_radius_m().max(self.shape.bounding_radius_m()),
+            _ => self.shape.bounding_radius_m(),
+        }
+    }
+
+    /// The exactly known lit and visible region, where there is one (an undisplaced sphere).
+    pub fn lit_visible(&self) -> Option<crate::body::LitVisible> {
+        if self.displaced() {
+            return None;
+        }
+        self.shape.lit_visible(self.sun_csf, self.cam_csf)
     }
 
     /// Camera-frame coordinates of a CSF point.

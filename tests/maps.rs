@@ -187,3 +187,128 @@ fn the_horizon_map_shadows_where_ray_marching_does() {
     assert!(n_hor < 2 * n_ray, "{n_hor} vs {n_ray}");
     assert!((0.001..0.01).contains(&loss_ray) && (0.001..0.01).contains(&loss_hor));
 }
+
+/// Normal maps (issue 3, item 1): the normals of a DEM rising northward with slope s, given
+/// instead as a normal map, render the same image; in the local frame O the map is the
+/// constant (0, -s, 1) / sqrt(1 + s^2), in the body frame its rotation texel by texel.
+#[test]
+fn a_normal_map_renders_as_the_dem_it_came_from() {
+    use optistim::body::{NormalFrame, Relief};
+    let s = 0.5;
+    let (w, h) = (64usize, 32usize);
+    let lat_of = |i: usize| {
+        std::f64::consts::FRAC_PI_2 - ((i / w) as f64 + 0.5) * std::f64::consts::PI / h as f64
+    };
+    let lon_of = |i: usize| {
+        -std::f64::consts::PI + ((i % w) as f64 + 0.5) * 2.0 * std::f64::consts::PI / w as f64
+    };
+    let grid = |f: &dyn Fn(usize) -> f64| {
+        let v = (0..w * h).map(f).collect();
+        Map::from_values(Path::new("m"), w, h, v, &Encoding::default()).unwrap()
+    };
+    let spec = SceneSpec {
+        albedo: 0.2,
+        camera_m: [10.0 * R_MOON, 4.0 * R_MOON, 2.0 * R_MOON],
+        sun_m: [AU, 0.5 * AU, 0.0],
+        render: "integration = \"trapezoidal\"",
+        ..Default::default()
+    };
+    let plain = spec.config();
+    let with = |relief: Relief| {
+        let mut c = plain.clone();
+        c.scene.body.relief = Some(relief);
+        total(&c)
+    };
+    let dem = Relief::new(grid(&|i| s * R_MOON * lat_of(i)), R_MOON, false).unwrap();
+    let flat = || Relief::new(grid(&|_| 0.0), R_MOON, false).unwrap();
+    let k = 1.0 / (1.0 + s * s).sqrt();
+    let local = flat()
+        .with_normal_map(
+            [grid(&|_| 0.0), grid(&|_| -s * k), grid(&|_| k)],
+            NormalFrame::Local,
+        )
+        .unwrap();
+    // The same normals in the body frame: x east + y north + z up at each texel centre.
+    let body_n = |i: usize| {
+        let (lat, lon) = (lat_of(i), lon_of(i));
+        let up = glam::DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
+        let east = glam::DVec3::new(-lon.sin(), lon.cos(), 0.0);
+        let north = up.cross(east);
+        (-s * k) * north + k * up
+    };
+    let body = flat()
+        .with_normal_map(
+            [
+                grid(&|i| body_n(i).x),
+                grid(&|i| body_n(i).y),
+                grid(&|i| body_n(i).z),
+            ],
+            NormalFrame::Body,
+        )
+        .unwrap();
+    let (td, _) = with(dem);
+    let (tl, _) = with(local);
+    let (tb, _) = with(body);
+    let (tp, _) = total(&plain);
+    println!(
+        "normal maps vs DEM: local {:.2e}, body {:.2e} (no relief {:.2e})",
+        tl / td - 1.0,
+        tb / td - 1.0,
+        tp / td - 1.0
+    );
+    // Map values are stored as f32.
+    assert!((tl / td - 1.0).abs() < 1e-7, "{tl} vs {td}");
+    // Body-frame vectors interpolated between texel centres 5.6 deg apart, then normalised.
+    assert!((tb / td - 1.0).abs() < 2e-3, "{tb} vs {td}");
+    assert!((tp / td - 1.0).abs() > 0.05);
+}
+
+/// Through the config: a 16-bit RGB normal map of the flat normal, (n + 1) / 2 encoded and
+/// decoded with scale = 2, shift = -1, renders as no relief (to its 1/65535 quantisation).
+#[test]
+fn an_rgb_normal_map_loads_through_the_config() {
+    let dir = std::env::temp_dir().join(format!("optistim-nm-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let tif = dir.join("normals.tif");
+    {
+        let f = std::fs::File::create(&tif).unwrap();
+        let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
+        let px: Vec<u16> = (0..32 * 16)
+            .flat_map(|_| [32768u16, 32768, 65535])
+            .collect();
+        enc.write_image::<tiff::encoder::colortype::RGB16>(32, 16, &px)
+            .unwrap();
+    }
+    let spec = SceneSpec {
+        camera_m: [10.0 * R_MOON, 4.0 * R_MOON, 0.0],
+        render: "integration = \"trapezoidal\"",
+        ..Default::default()
+    };
+    let base = spec.toml();
+    let with_map = base.replacen(
+        "albedo_type = \"normal\"\n",
+        &format!(
+            "albedo_type = \"normal\"\nnormal_map = {{ path = {:?}, scale = 2.0, shift = -1.0 }}\nnormal_frame = \"local\"\n",
+            tif.display().to_string()
+        ),
+        1,
+    );
+    let t = |text: &str| {
+        total(&optistim::config::parse(text, "n.toml").unwrap_or_else(|e| panic!("{e}"))).0
+    };
+    let (tm, tp) = (t(&with_map), t(&base));
+    std::fs::remove_dir_all(&dir).ok();
+    println!("flat RGB normal map vs none: {:.2e}", tm / tp - 1.0);
+    assert!((tm / tp - 1.0).abs() < 1e-4, "{tm} vs {tp}");
+    let bad = base.replacen(
+        "albedo_type = \"normal\"\n",
+        "albedo_type = \"normal\"\nnormal_frame = \"body\"\n",
+        1,
+    );
+    match optistim::config::parse(&bad, "n.toml") {
+        Err(optistim::config::ConfigError::Invalid { key, .. }) => {
+            assert_eq!(key, "body.normal_frame")
+        }
+        other => panic!("{other:?}"),
+    }
+}

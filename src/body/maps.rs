@@ -72,6 +72,34 @@ pub struct Map {
 impl Map {
     /// Reads a TIFF and applies `encoding`.
     pub fn load(path: &Path, encoding: &Encoding) -> Result<Map, MapError> {
+        let (w, h, channels, raw) = Map::read_samples(path)?;
+        let colour = channels.min(3);
+        let values: Vec<f64> = raw
+            .chunks_exact(channels)
+            .map(|px| px[..colour].iter().sum::<f64>() / colour as f64)
+            .collect();
+        Map::from_values(path, w, h, values, encoding)
+    }
+
+    /// Reads an RGB TIFF as three maps, one per channel, each through `encoding` (a normal
+    /// map's `2 v - 1` is `scale = 2, shift = -1`).
+    pub fn load_rgb(path: &Path, encoding: &Encoding) -> Result<[Map; 3], MapError> {
+        let (w, h, channels, raw) = Map::read_samples(path)?;
+        if channels < 3 {
+            return Err(MapError::Format {
+                file: path.display().to_string(),
+                message: "one band: three (RGB) expected".into(),
+            });
+        }
+        let band = |k: usize| {
+            let v = raw.chunks_exact(channels).map(|px| px[k]).collect();
+            Map::from_values(path, w, h, v, encoding)
+        };
+        Ok([band(0)?, band(1)?, band(2)?])
+    }
+
+    /// A TIFF's samples, integers normalised to [0, 1]: `(width, height, channels, samples)`.
+    fn read_samples(path: &Path) -> Result<(usize, usize, usize, Vec<f64>), MapError> {
         use tiff::decoder::{Decoder, DecodingResult};
         let file = path.display().to_string();
         let read = |e: &dyn std::fmt::Display| MapError::Read {
@@ -113,12 +141,7 @@ impl Map {
                 message: format!("{} samples for {w} x {h} x {channels}", raw.len()),
             });
         }
-        let colour = channels.min(3);
-        let values: Vec<f64> = raw
-            .chunks_exact(channels)
-            .map(|px| px[..colour].iter().sum::<f64>() / colour as f64)
-            .collect();
-        Map::from_values(path, w, h, values, encoding)
+        Ok((w, h, channels, raw))
     }
 
     /// A map from decoded values (before the gamma, domain, scale, shift and mean steps).

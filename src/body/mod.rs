@@ -12,6 +12,7 @@ pub mod sphere;
 
 use crate::brdf::Brdf;
 pub use ellipsoid::Ellipsoid;
+
 use glam::DVec3;
 pub use sphere::{LitVisible, Sphere};
 
@@ -121,6 +122,23 @@ pub struct Relief {
     horizon_on_dem_grid: bool,
     /// Whether the heights displace the surface (`r = R + h`).
     displaces: bool,
+    /// A normal map, which replaces the normals of the slopes where it has a value.
+    pub normal_map: Option<NormalMap>,
+}
+
+/// A normal map (paper Sec. 4.4): the three components on one grid, in the body frame B or in
+/// the local frame O (x east, y north, z up).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NormalMap {
+    pub components: [std::sync::Arc<maps::Map>; 3],
+    pub frame: NormalFrame,
+    on_dem_grid: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NormalFrame {
+    Body,
+    Local,
 }
 
 /// The DEM at one point: see [`Relief::at`].
@@ -189,6 +207,7 @@ impl Relief {
             horizon_sin_max: -1.0,
             horizon_on_dem_grid: false,
             displaces,
+            normal_map: None,
         })
     }
 
@@ -295,11 +314,59 @@ impl Relief {
             DVec3::Y
         };
         let north = up.cross(east);
+        let mut normal = (up - se * east - sn * north).normalize();
+        if let Some(nm) = &self.normal_map {
+            let local_taps;
+            let t = if nm.on_dem_grid {
+                Some(&taps)
+            } else {
+                local_taps = nm.components[0].taps(lon, lat);
+                local_taps.as_ref()
+            };
+            if let Some(t) = t {
+                let [x, y, z] = [0, 1, 2].map(|k| nm.components[k].at(t));
+                let n = match nm.frame {
+                    NormalFrame::Body => DVec3::new(x, y, z),
+                    NormalFrame::Local => x * east + y * north + z * up,
+                };
+                if n.length_squared() > 1e-12 {
+                    normal = n.normalize();
+                }
+            }
+        }
         ReliefSample {
             height_m,
-            normal: (up - se * east - sn * north).normalize(),
+            normal,
             horizon_sin,
         }
+    }
+
+    /// The same relief with a normal map (three maps of one grid; any scale and shift already
+    /// applied, so the values are the components, normalised here).
+    pub fn with_normal_map(
+        self,
+        components: [maps::Map; 3],
+        frame: NormalFrame,
+    ) -> Result<Relief, maps::MapError> {
+        let [x, y, z] = components;
+        for other in [&y, &z] {
+            if !x.same_grid(other) {
+                return Err(maps::MapError::Format {
+                    file: x.file.display().to_string(),
+                    message: "the normal map's components on different grids".into(),
+                });
+            }
+        }
+        let on_dem_grid = x.same_grid(&self.heights_m);
+        let arc = std::sync::Arc::new;
+        Ok(Relief {
+            normal_map: Some(NormalMap {
+                components: [arc(x), arc(y), arc(z)],
+                frame,
+                on_dem_grid,
+            }),
+            ..self
+        })
     }
 
     /// The sphere's radius the heights are measured from [m].

@@ -605,6 +605,46 @@ impl Validator<'_> {
                 })
             }
         };
+        let relief =
+            match &b.normal_map {
+                None => {
+                    if b.normal_frame.is_some() {
+                        return self.err(
+                            "body.normal_frame",
+                            "without body.normal_map",
+                            "a normal map",
+                        );
+                    }
+                    relief
+                }
+                Some(m) => {
+                    use crate::body::NormalFrame;
+                    let frame = match self.choice(
+                        "body.normal_frame",
+                        b.normal_frame.as_deref().unwrap_or("local"),
+                        &["local", "body"],
+                    )? {
+                        "body" => NormalFrame::Body,
+                        _ => NormalFrame::Local,
+                    };
+                    let components = self.map_rgb("body.normal_map", m)?;
+                    // Without a DEM: a flat one on the normal map's grid, for the normals alone.
+                    let relief = match relief {
+                        Some(r) => r,
+                        None => {
+                            let flat = components[0]
+                                .with_values(vec![0.0; components[0].values.len()])
+                                .and_then(|h| crate::body::Relief::new(h, radius_m, false));
+                            flat.or_else(|e| {
+                                self.err("body.normal_map", m.path.as_str(), &e.to_string())
+                            })?
+                        }
+                    };
+                    Some(relief.with_normal_map(components, frame).or_else(|e| {
+                        self.err("body.normal_map", m.path.as_str(), &e.to_string())
+                    })?)
+                }
+            };
         if b.dem_map.is_none() && (b.displacement || b.dem_values.is_some()) {
             let key = if b.displacement {
                 "body.displacement"
@@ -629,9 +669,9 @@ impl Validator<'_> {
         })
     }
 
-    /// Loads a map with its encoding; `key` names it in errors.
-    fn map(&self, key: &str, m: &raw::RawMap) -> R<crate::body::maps::Map> {
-        use crate::body::maps::{Encoding, Map};
+    /// A map's encoding from its table; `key` names it in errors.
+    fn encoding(&self, key: &str, m: &raw::RawMap) -> R<crate::body::maps::Encoding> {
+        use crate::body::maps::Encoding;
         let d = Encoding::default();
         let enc = Encoding {
             gamma: self.positive(&format!("{key}.gamma"), m.gamma.unwrap_or(1.0))?,
@@ -649,12 +689,31 @@ impl Validator<'_> {
         {
             return self.err(key, "scale/shift/domain", "finite numbers");
         }
+        Ok(enc)
+    }
+
+    /// Loads a map with its encoding; `key` names it in errors.
+    fn map(&self, key: &str, m: &raw::RawMap) -> R<crate::body::maps::Map> {
+        let enc = self.encoding(key, m)?;
         let path = self.path(&m.path);
-        Map::load(&path, &enc).or_else(|e| {
+        crate::body::maps::Map::load(&path, &enc).or_else(|e| {
             self.err(
                 &format!("{key}.path"),
                 path.display().to_string(),
                 &format!("a readable map ({e})"),
+            )
+        })
+    }
+
+    /// Loads an RGB map as its three channels, each with the encoding.
+    fn map_rgb(&self, key: &str, m: &raw::RawMap) -> R<[crate::body::maps::Map; 3]> {
+        let enc = self.encoding(key, m)?;
+        let path = self.path(&m.path);
+        crate::body::maps::Map::load_rgb(&path, &enc).or_else(|e| {
+            self.err(
+                &format!("{key}.path"),
+                path.display().to_string(),
+                &format!("a readable RGB map ({e})"),
             )
         })
     }

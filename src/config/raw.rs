@@ -62,6 +62,10 @@ pub struct RawBody {
     /// What the DEM's values are: `height` above `radius_m` (default) or `radius` from the
     /// centre (a Vesta-like shape model).
     pub dem_values: Option<String>,
+    /// A normal map (RGB; `scale = 2, shift = -1` for integer encodings of `(n + 1) / 2`).
+    pub normal_map: Option<RawMap>,
+    /// The normal map's frame: `local` (x east, y north, z up; default) or `body`.
+    pub normal_frame: Option<String>,
     /// Whether the DEM displaces the surface (default false: it only tilts the normals).
     #[serde(default)]
     pub displacement: bool,

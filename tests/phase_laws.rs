@@ -237,3 +237,33 @@ fn rendered_flux_matches_the_exact_finite_distance_flux() {
     eprintln!("worst rendered/exact - 1: {worst_near:.2e} at d/R 10, {worst_far:.2e} beyond");
     assert!(worst_near < 1e-3 && worst_far < 1e-4);
 }
+
+/// The midpoint rule (render.integration = "midpoint", the faster sub-grid rule) against the
+/// exact finite-distance flux, beside the trapezoidal rule, on the Lommel-Seeliger sphere
+/// (no closed form: both integrate it numerically).
+#[test]
+fn the_midpoint_rule_matches_the_exact_flux_as_the_trapezoid_does() {
+    use optistim::render::settings::Integration;
+    let mut renderer = Renderer::new(0).unwrap();
+    for phase in [0.0, 60.0, 120.0] {
+        for dr in [100.0, 1000.0] {
+            let mut cfg = scene("lommel_seeliger", phase, dr);
+            let exact = exact_total(&cfg, 160);
+            let mut err = |integration| {
+                cfg.settings.integration = integration;
+                let f = renderer
+                    .render(&cfg.scene, &cfg.pose, &cfg.settings)
+                    .unwrap();
+                (f.pl.iter().sum::<f64>() / exact - 1.0).abs()
+            };
+            let mid = err(Integration::Midpoint {
+                points_per_deg: 5.0,
+            });
+            let trap = err(Integration::Trapezoidal {
+                points_per_deg: 5.0,
+            });
+            eprintln!("phase {phase:5.1} d/R {dr:6.0}: midpoint {mid:.2e} trapezoid {trap:.2e}");
+            assert!(mid < 1e-4 && trap < 1e-4, "{mid} {trap}");
+        }
+    }
+}

@@ -979,7 +979,7 @@ impl Validator<'_> {
             s.integration = match self.choice(
                 "render.integration",
                 v,
-                &["auto", "exact", "trapezoidal", "pointwise"],
+                &["auto", "exact", "trapezoidal", "midpoint", "pointwise"],
             )? {
                 "auto" => Integration::Auto {
                     points_per_deg: ppd,
@@ -991,6 +991,9 @@ impl Validator<'_> {
                     Integration::Exact
                 }
                 "trapezoidal" => Integration::Trapezoidal {
+                    points_per_deg: ppd,
+                },
+                "midpoint" => Integration::Midpoint {
                     points_per_deg: ppd,
                 },
                 _ => Integration::Pointwise,

@@ -16,6 +16,8 @@
 //!   but no more than `points_per_px` per pixel the quadrangle spans in the image (a
 //!   far body needs no 25 BRDF evaluations per square degree when a degree is half a pixel),
 //!   at least 2 per side; each sample with its own directions and distances.
+//! - **midpoint**: the composite midpoint rule on the same sub-grid (nodes at the cells'
+//!   centres, at least 1 per side): a faster alternative of the same order.
 //! - **pointwise**: the BRDF at the midpoint times the quadrangle's area (Eqs. 37-38).
 //!
 //! Quadrangles that straddle the limb or the terminator (see [`super::pruning`]) are integrated
@@ -128,12 +130,23 @@ fn clipped(
 pub enum Method {
     Exact(ExactForm),
     Trapezoidal { points_per_deg: f64 },
+    Midpoint { points_per_deg: f64 },
     Pointwise,
+}
+
+/// The rule on a quadrangle's sub-grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Rule {
+    /// Nodes on the cell corners, halved on the edges (at least 2 per side).
+    Trapezoid,
+    /// Nodes at the cell centres (at least 1 per side): same order, half the error constant
+    /// for smooth integrands, and no node on an edge that the neighbour evaluates again.
+    Midpoint,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[error(
-    "render.integration = \"exact\" has no closed form {reason}: use \"auto\", \"trapezoidal\" or \"pointwise\""
+    "render.integration = \"exact\" has no closed form {reason}: use \"auto\", \"trapezoidal\", \"midpoint\" or \"pointwise\""
 )]
 pub struct NoClosedForm {
     pub reason: String,
@@ -162,6 +175,7 @@ impl Method {
             },
             Integration::Exact => Method::Exact(form?),
             Integration::Trapezoidal { points_per_deg } => Method::Trapezoidal { points_per_deg },
+            Integration::Midpoint { points_per_deg } => Method::Midpoint { points_per_deg },
             Integration::Pointwise => Method::Pointwise,
         })
     }
@@ -269,13 +283,16 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     (g, area * cos_eps / (ds2 * dc2))
 }
 
-/// Trapezoidal rule over quadrangle `(i, k)` with clamped cosines.
-fn trapezoid(
+/// The trapezoidal or midpoint rule over quadrangle `(i, k)` with clamped cosines, on a
+/// sub-grid of `points_per_deg` per degree, capped by `px_cap`, at least `min_points` per side.
+#[allow(clippy::too_many_arguments)]
+fn sub_grid(
     view: &View,
     brdf: &Brdf,
     trig: &GridTrig,
     i: usize,
     k: usize,
+    rule: Rule,
     points_per_deg: f64,
     px_cap: &PixelCap,
     min_points: usize,
@@ -284,20 +301,30 @@ fn trapezoid(
     let (l0, l1) = (trig.lat[k], trig.lat[k + 1]);
     // Pixels per radian of arc on the surface here (an upper bound: no foreshortening).
     let px_per_rad = px_cap.px_per_rad(view, trig.mid_dir(i, k));
+    let extra = match rule {
+        Rule::Trapezoid => 1,
+        Rule::Midpoint => 0,
+    };
     let count = |span: f64, arc: f64| {
         let n = (span.to_degrees() * points_per_deg).min(span * arc * px_per_rad);
-        (n.ceil() as usize + 1).clamp(min_points, 64)
+        (n.ceil() as usize + extra).clamp(min_points, 64)
     };
     let lat_mid = 0.5 * (l0 + l1);
     let (nu, nv) = (count(p1 - p0, lat_mid.cos()), count(l1 - l0, 1.0));
+    // Node `a` of `n` across `[lo, hi]` and its weight in units of the spacing.
+    let node = |lo: f64, hi: f64, a: usize, n: usize| match rule {
+        Rule::Trapezoid => {
+            let w = if a == 0 || a == n - 1 { 0.5 } else { 1.0 };
+            (lo + (hi - lo) * a as f64 / (n - 1) as f64, w)
+        }
+        Rule::Midpoint => (lo + (hi - lo) * (a as f64 + 0.5) / n as f64, 1.0),
+    };
     let mut sum = 0.0;
     for b in 0..nv {
-        let lat = l0 + (l1 - l0) * b as f64 / (nv - 1) as f64;
-        let wb = if b == 0 || b == nv - 1 { 0.5 } else { 1.0 };
+        let (lat, wb) = node(l0, l1, b, nv);
         let (sl, cl) = lat.sin_cos();
         for a in 0..nu {
-            let lon = p0 + (p1 - p0) * a as f64 / (nu - 1) as f64;
-            let wa = if a == 0 || a == nu - 1 { 0.5 } else { 1.0 };
+            let (lon, wa) = node(p0, p1, a, nu);
             let (so, co) = lon.sin_cos();
             let (g, geo) = sample(view, DVec3::new(cl * co, cl * so, sl));
             if g.mu0 > 0.0 && g.mu > 0.0 && geo > 0.0 {
@@ -305,7 +332,8 @@ fn trapezoid(
             }
         }
     }
-    sum * (p1 - p0) / (nu - 1) as f64 * (l1 - l0) / (nv - 1) as f64
+    let cells = |n: usize| (n - extra) as f64;
+    sum * (p1 - p0) / cells(nu) * (l1 - l0) / cells(nv)
 }
 
 /// The trapezoidal rule's cap in image space: at most `points_per_px` points per pixel a
@@ -368,7 +396,9 @@ pub fn integrate(
     };
     let px_cap = PixelCap::new(view, points_per_px);
     let boundary_ppd = match method {
-        Method::Trapezoidal { points_per_deg } => points_per_deg,
+        Method::Trapezoidal { points_per_deg } | Method::Midpoint { points_per_deg } => {
+            points_per_deg
+        }
         _ => 5.0,
     };
     pl.clear();
@@ -404,8 +434,8 @@ pub fn integrate(
                     match &clip {
                         Some(c) => clipped(view, brdf, c, &nodes, trig, i, k),
                         None => {
-                            let n = BOUNDARY_MIN_POINTS;
-                            trapezoid(view, brdf, trig, i, k, boundary_ppd, &px_cap, n)
+                            let (rule, n) = (Rule::Trapezoid, BOUNDARY_MIN_POINTS);
+                            sub_grid(view, brdf, trig, i, k, rule, boundary_ppd, &px_cap, n)
                         }
                     }
                 } else {
@@ -418,7 +448,12 @@ pub fn integrate(
                             }
                         }
                         Method::Trapezoidal { points_per_deg } => {
-                            trapezoid(view, brdf, trig, i, k, points_per_deg, &px_cap, 2)
+                            let rule = Rule::Trapezoid;
+                            sub_grid(view, brdf, trig, i, k, rule, points_per_deg, &px_cap, 2)
+                        }
+                        Method::Midpoint { points_per_deg } => {
+                            let rule = Rule::Midpoint;
+                            sub_grid(view, brdf, trig, i, k, rule, points_per_deg, &px_cap, 1)
                         }
                         Method::Pointwise => {
                             let (g, geo) = sample(view, trig.mid_dir(i, k));

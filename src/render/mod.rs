@@ -242,8 +242,9 @@ fn check_settings(s: &Settings) -> Result<(), RenderError> {
             return bad("gaussian_sigma_px", sigma_px.to_string(), "a number > 0");
         }
     }
-    if let Integration::Trapezoidal { points_per_deg } | Integration::Auto { points_per_deg } =
-        s.integration
+    if let Integration::Trapezoidal { points_per_deg }
+    | Integration::Midpoint { points_per_deg }
+    | Integration::Auto { points_per_deg } = s.integration
     {
         if !(points_per_deg.is_finite() && points_per_deg > 0.0) {
             return bad(

@@ -45,9 +45,7 @@ fn a_misplaced_rendering_is_caught_and_realigned() {
     let mut r = optistim::render::Renderer::new(0).unwrap();
     let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
     let det = &cfg.scene.camera.detector;
-    let signal = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
-    let mut dn = Vec::new();
-    det.expose(&signal, (frame.width, frame.height), 0, &mut dn);
+    let (_, dn) = det.image(&frame.pl, (frame.width, frame.height), &cfg.scene.sun, 0);
     let img = Gray::new(
         frame.width,
         frame.height,

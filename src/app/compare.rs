@@ -38,14 +38,8 @@ pub fn run(
     let mut renderer = Renderer::new(config.settings.threads)?;
     let frame = renderer.render(&config.scene, &config.pose, &config.settings)?;
     let det = &config.scene.camera.detector;
-    let signal = det.signal(&frame.pl, det.signal_factor(&config.scene.sun));
-    let mut dn = Vec::new();
-    det.expose(
-        &signal,
-        (frame.width, frame.height),
-        config.pose.frame_id,
-        &mut dn,
-    );
+    let size = (frame.width, frame.height);
+    let (_, dn) = det.image(&frame.pl, size, &config.scene.sun, config.pose.frame_id);
     let render_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let to_f64 = |v: &[u16]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();

@@ -60,14 +60,8 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
     let radiance = config.scene.sun.radiance_integral(config.power_band_m);
     let k_signal = det.signal_factor(&config.scene.sun);
     let power: Vec<f64> = frame.pl.iter().map(|x| x * radiance).collect();
-    let signal = det.signal(&frame.pl, k_signal);
-    let mut dn = Vec::new();
-    det.expose(
-        &signal,
-        (frame.width, frame.height),
-        config.pose.frame_id,
-        &mut dn,
-    );
+    let size = (frame.width, frame.height);
+    let (signal, dn) = det.image(&frame.pl, size, &config.scene.sun, config.pose.frame_id);
     let detector_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let t0 = Instant::now();

@@ -694,26 +694,33 @@ impl Validator<'_> {
 
     /// Loads a map with its encoding; `key` names it in errors.
     fn map(&self, key: &str, m: &raw::RawMap) -> R<crate::body::maps::Map> {
-        let enc = self.encoding(key, m)?;
-        let path = self.path(&m.path);
-        crate::body::maps::Map::load(&path, &enc).or_else(|e| {
-            self.err(
-                &format!("{key}.path"),
-                path.display().to_string(),
-                &format!("a readable map ({e})"),
-            )
-        })
+        self.load_map(key, m, "a readable map", crate::body::maps::Map::load)
     }
 
     /// Loads an RGB map as its three channels, each with the encoding.
     fn map_rgb(&self, key: &str, m: &raw::RawMap) -> R<[crate::body::maps::Map; 3]> {
+        self.load_map(
+            key,
+            m,
+            "a readable RGB map",
+            crate::body::maps::Map::load_rgb,
+        )
+    }
+
+    fn load_map<T>(
+        &self,
+        key: &str,
+        m: &raw::RawMap,
+        what: &str,
+        load: impl Fn(&Path, &crate::body::maps::Encoding) -> Result<T, crate::body::maps::MapError>,
+    ) -> R<T> {
         let enc = self.encoding(key, m)?;
         let path = self.path(&m.path);
-        crate::body::maps::Map::load_rgb(&path, &enc).or_else(|e| {
+        load(&path, &enc).or_else(|e| {
             self.err(
                 &format!("{key}.path"),
                 path.display().to_string(),
-                &format!("a readable RGB map ({e})"),
+                &format!("{what} ({e})"),
             )
         })
     }

@@ -42,6 +42,21 @@ impl Detector {
         pl.par_iter().map(|&x| x * signal_factor).collect()
     }
 
+    /// A rendered frame's `(P/L)` image of `size` through this detector: the signal [e-/s]
+    /// (Eq. 45) and the DN the camera hands out ([`Detector::expose`]).
+    pub fn image(
+        &self,
+        pl: &[f64],
+        size: (usize, usize),
+        sun: &SunSpectrum,
+        frame_id: u64,
+    ) -> (Vec<f64>, Vec<u16>) {
+        let signal = self.signal(pl, self.signal_factor(sun));
+        let mut dn = Vec::new();
+        self.expose(&signal, size, frame_id, &mut dn);
+        (signal, dn)
+    }
+
     /// The ADC's largest DN (at `bit_depth`).
     pub fn adc_max_dn(&self) -> f64 {
         ((1u64 << self.bit_depth) - 1) as f64

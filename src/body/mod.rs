@@ -93,9 +93,9 @@ pub struct Body {
     /// map, or outside a regional one).
     pub brdf: Brdf,
     pub albedo_map: Option<AlbedoMap>,
-    /// Surface relief from a DEM: it tilts the normals the BRDF sees (shading) and, with
-    /// `render.self_shadowing`, hides the Sun and the camera (ray marching or a horizon map).
-    /// It does not displace the surface.
+    /// Surface relief from a DEM: it tilts the normals the BRDF sees (shading, or a normal
+    /// map's), with `body.displacement` moves the surface to `R + h`, and with
+    /// `render.self_shadowing` hides the Sun and the camera (ray marching or a horizon map).
     pub relief: Option<Relief>,
 }
 
@@ -212,7 +212,7 @@ impl Relief {
     }
 
     /// The same relief with a horizon map: elevation angles [rad] of the local horizon above
-    /// the sphere's horizontal plane.
+    /// the tangent plane of the DEM's normal (see [`Relief::at`]).
     pub fn with_horizon(self, horizon_rad: maps::Map) -> Result<Relief, maps::MapError> {
         let top = horizon_rad.values.iter().fold(f32::MIN, |a, &v| a.max(v)) as f64;
         let sines: Vec<f64> = horizon_rad
@@ -268,12 +268,6 @@ impl Relief {
             }
             t += self.step_m;
         }
-    }
-
-    /// The surface normal (body frame) over the unit direction `up` from the centre.
-    #[inline]
-    pub fn normal(&self, up: DVec3) -> DVec3 {
-        self.at(up, false).normal
     }
 
     /// The DEM over `up` (body frame): height, normal and, when `horizon` is asked and there

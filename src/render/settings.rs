@@ -85,8 +85,9 @@ pub struct Settings {
     pub sampling: Sampling,
     pub split: Split,
     pub integration: Integration,
-    /// The trapezoidal rule's cap in image space: at most this many points per pixel that a
-    /// quadrangle spans along each side (0 = no cap; `points_per_deg` alone).
+    /// The sub-grid rules' cap in image space (trapezoidal and midpoint): at most this many
+    /// points per pixel that a quadrangle spans along each side (0 = no cap; `points_per_deg`
+    /// alone).
     pub trapezoid_points_per_px: f64,
     /// Gauss-Legendre nodes per dimension (and per piece) on quadrangles that straddle the
     /// limb or the terminator, integrated over their exact lit and visible part.

@@ -12,7 +12,8 @@ use glam::{DMat3, DVec3};
 pub struct View<'a> {
     pub intrinsics: &'a Intrinsics,
     pub shape: &'a Shape,
-    /// DEM slopes that tilt the normals the BRDF sees, if any.
+    /// The DEM, if any: it tilts the normals the BRDF sees, may displace the surface and cast
+    /// shadows.
     pub relief: Option<&'a Relief>,
     /// How the relief hides the Sun and the camera (`Off` without a relief).
     pub shadows: SelfShadowing,
@@ -98,22 +99,17 @@ impl<'a> View<'a> {
         let horizon = self.shadows == SelfShadowing::HorizonMap;
         let at = r.at(self.csf.body_from_csf * dir, horizon);
         let normal = self.csf_from_body * at.normal;
-        if r.displaces() {
-            let p = dir * (r.reference_radius_m() + at.height_m);
-            SurfacePoint {
-                p,
-                normal,
-                area: self.area_factor(dir, p, normal),
-                horizon_sin: at.horizon_sin,
-            }
+        // The geometric normal is the DEM's where it displaces the surface, the shape's else.
+        let (p, n_geo) = if r.displaces() {
+            (dir * (r.reference_radius_m() + at.height_m), normal)
         } else {
-            let (p, n) = self.surface(dir);
-            SurfacePoint {
-                p,
-                normal,
-                area: self.area_factor(dir, p, n),
-                horizon_sin: at.horizon_sin,
-            }
+            self.surface(dir)
+        };
+        SurfacePoint {
+            p,
+            normal,
+            area: self.area_factor(dir, p, n_geo),
+            horizon_sin: at.horizon_sin,
         }
     }
 

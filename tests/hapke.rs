@@ -47,6 +47,51 @@ fn hapke_matches_eradiate_to_1e_6_at_480_geometries() {
     assert!(worst < 1e-6, "{worst} at {at}");
 }
 
+/// The opposition terms against a second implementation: refmod 0.1.0's AMSA model with an
+/// isotropic particle phase function, where it coincides with ours at b = 0 (isotropic
+/// multiple scattering, 2002 H-function, shadow hiding and **coherent backscatter**) on a
+/// smooth surface: refmod's roughness correction is not Hapke's 1984 one (which eradiate and
+/// we share, above), and it has no porosity factor (K = 1 only). 680 geometries, incidence and
+/// emission 0-89 deg, azimuth 0-180 deg, exact zero phase left out (refmod's CBOE is 0/EPS
+/// there), four parameter sets including a strong, narrow CBOE.
+/// `tests/data/hapke_refmod.py` made `tests/data/hapke_refmod.csv` (r = f_r cos i).
+#[test]
+fn hapke_with_coherent_backscatter_matches_refmod_at_680_geometries() {
+    let text = include_str!("data/hapke_refmod.csv");
+    let (mut n, mut worst, mut at) = (0, 0.0f64, String::new());
+    for line in text.lines().skip(1) {
+        let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+        let [w, b0_s, h_s, b0_c, h_c, theta, i, e, az, want] = v[..] else {
+            panic!("{line}");
+        };
+        let brdf = Hapke::new(
+            w,
+            HapkeParams {
+                b: 0.0,
+                c: 0.5,
+                b0_c,
+                h_c,
+                b0_s,
+                h_s,
+                theta_rad: theta,
+                filling_factor: 0.0,
+            },
+        );
+        let (i, e, az) = (i.to_radians(), e.to_radians(), az.to_radians());
+        let cos_g = i.cos() * e.cos() + i.sin() * e.sin() * az.cos();
+        let got = brdf.eval(i.cos(), e.cos(), cos_g) * i.cos();
+        let rel = (got - want).abs() / want.abs().max(1e-300);
+        if rel > worst {
+            worst = rel;
+            at = line.to_string();
+        }
+        n += 1;
+    }
+    eprintln!("{n} geometries: largest relative difference {worst:.3e} at {at}");
+    assert_eq!(n, 680);
+    assert!(worst < 1e-6, "{worst} at {at}");
+}
+
 /// A lunar Hapke sphere (with coherent backscatter, roughness and porosity) rendered far away
 /// (d/R = 10^4) gives the disk-integrated phase law computed numerically from the BRDF
 /// (`Brdf::phase_law`, Eq. 48), within 0.1 %, from 0 to 120 deg.

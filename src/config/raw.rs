@@ -1,5 +1,5 @@
 //! Scene files as written (serde, TOML). Unknown keys are errors, so a typo never silently
-//! falls back to a default. Validation and unit conversion happen in [`super::validate`].
+//! falls back to a default. Validation and unit conversion happen in [`super`] (`config/mod.rs`).
 
 use serde::Deserialize;
 

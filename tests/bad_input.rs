@@ -110,6 +110,19 @@ fn out_of_range_values_name_file_key_value_and_allowed() {
         "render.self_shadowing",
         &["always", "ray_marching", "horizon_map"],
     );
+    // Shadows that cannot be cast are refused, not silently dropped.
+    invalid(
+        "[render]",
+        "[render]\nself_shadowing = \"ray_marching\"",
+        "render.self_shadowing",
+        &["ray_marching", "dem_map"],
+    );
+    invalid(
+        "[render]",
+        "[render]\nself_shadowing = \"horizon_map\"",
+        "render.self_shadowing",
+        &["horizon_map", "body.horizon_map"],
+    );
     invalid(
         "value = [0.5, 0.6, 0.2]",
         "value = [0.5, 1.6, 0.2]",

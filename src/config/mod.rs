@@ -1103,6 +1103,21 @@ impl Validator<'_> {
                 "horizon_map" => SelfShadowing::HorizonMap,
                 _ => SelfShadowing::Off,
             };
+            // Shadows asked for and impossible would silently be none.
+            let relief = body.relief.as_ref();
+            match s.self_shadowing {
+                SelfShadowing::RayMarching if relief.is_none() => {
+                    return self.err("render.self_shadowing", v, "off without a body.dem_map");
+                }
+                SelfShadowing::HorizonMap if relief.is_none_or(|r| r.horizon_sin.is_none()) => {
+                    return self.err(
+                        "render.self_shadowing",
+                        v,
+                        "off or ray_marching without a body.horizon_map",
+                    );
+                }
+                _ => {}
+            }
         }
         if let Some(d) = r.depth {
             s.depth = d;

@@ -270,6 +270,52 @@ impl Relief {
         }
     }
 
+    /// The first intersection `t > 0` of the ray `origin + t dir` (`dir` unit, body frame)
+    /// with the displaced surface `r = R + h`: the ray enters the sphere of the highest point,
+    /// is marched a quarter texel a step until it is below the surface (a grazing ray may
+    /// skip a ridge thinner than that), and the crossing is refined by bisection (to about a
+    /// micrometre). `None` if it leaves that sphere without
+    /// meeting the surface.
+    pub fn intersect_displaced(&self, origin: DVec3, dir: DVec3) -> Option<f64> {
+        let ceiling = self.bounding_radius_m().max(self.radius_m);
+        let b = origin.dot(dir);
+        let disc = b * b - (origin.length_squared() - ceiling * ceiling);
+        if disc < 0.0 {
+            return None;
+        }
+        let (t_in, t_out) = (-b - disc.sqrt(), -b + disc.sqrt());
+        if t_out <= 0.0 {
+            return None;
+        }
+        let below = |t: f64| {
+            let q = origin + dir * t;
+            let r = q.length();
+            let (lon, lat) = crate::geometry::lon_lat(q / r);
+            r < self.radius_m + self.heights_m.sample(lon, lat).unwrap_or(0.0)
+        };
+        let mut prev = t_in.max(0.0);
+        if below(prev) {
+            return Some(prev);
+        }
+        while prev < t_out {
+            let t = (prev + self.step_m).min(t_out);
+            if below(t) {
+                let (mut lo, mut hi) = (prev, t);
+                for _ in 0..40 {
+                    let mid = 0.5 * (lo + hi);
+                    if below(mid) {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                return Some(hi);
+            }
+            prev = t;
+        }
+        None
+    }
+
     /// The DEM over `up` (body frame): height, normal and, when `horizon` is asked and there
     /// is a horizon map, the sine of the local horizon's elevation there. One
     /// longitude/latitude and, when the maps share a grid (the DEM's slopes always do; the
@@ -417,6 +463,35 @@ mod tests {
     /// away, 9 m of drop over 5.6 km, about 53 m of shadow; and bilinear interpolation, which
     /// reaches the wall's full height only at the first texel centre, half a cell east of the
     /// face.)
+    #[test]
+    fn a_ray_meets_the_displaced_surface_where_the_bigger_sphere_is() {
+        let radius = 1.0e6;
+        let (w, h) = (360, 180);
+        let dem = maps::Map::from_values(
+            std::path::Path::new("flat"),
+            w,
+            h,
+            vec![5000.0; w * h],
+            &maps::Encoding::default(),
+        )
+        .unwrap();
+        let relief = Relief::new(dem, radius, true).unwrap();
+        let origin = DVec3::new(3.0e6, 2.0e5, -1.0e5);
+        for target in [DVec3::ZERO, DVec3::new(0.0, 9.0e5, 3.0e5)] {
+            let dir = (target - origin).normalize();
+            let t = relief.intersect_displaced(origin, dir).unwrap();
+            let want = crate::geometry::ray_sphere(origin, dir, radius + 5000.0).unwrap();
+            assert!((t - want).abs() < 1e-3, "{t} vs {want}");
+        }
+        // A ray passing above the highest point misses.
+        let miss = DVec3::new(0.0, 1.0, 0.0);
+        assert!(
+            relief
+                .intersect_displaced(DVec3::new(0.0, 0.0, 1.006e6), miss)
+                .is_none()
+        );
+    }
+
     #[test]
     fn a_wall_casts_the_shadow_length_of_its_height_over_the_sun_elevation() {
         let radius = 1_737_400.0;

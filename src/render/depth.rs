@@ -1,20 +1,31 @@
 //! Range to the surface along each pixel's line of sight [m], NaN where the line of sight
-//! misses the body: one ray per pixel centre, distortion inverted.
+//! misses the body: one ray per pixel centre, distortion inverted; a displacing DEM is
+//! intersected by marching ([`Relief::intersect_displaced`]).
 
-use crate::body::Shape;
+use crate::body::{Relief, Shape};
 use crate::camera::Intrinsics;
 use crate::scene::Pose;
 use glam::DVec3;
 use rayon::prelude::*;
 
-pub fn depth_map(intrinsics: &Intrinsics, shape: &Shape, pose: &Pose) -> Vec<f64> {
+pub fn depth_map(
+    intrinsics: &Intrinsics,
+    shape: &Shape,
+    relief: Option<&Relief>,
+    pose: &Pose,
+) -> Vec<f64> {
+    let displaced = relief.filter(|r| r.displaces());
     let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
     let mut out = vec![f64::NAN; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(j, row)| {
         for (i, o) in row.iter_mut().enumerate() {
             let (x, y) = intrinsics.unproject(i as f64 + 0.5, j as f64 + 0.5);
             let dir = (pose.body_from_camera * DVec3::new(x, y, 1.0)).normalize();
-            if let Some(t) = shape.intersect(pose.camera_position_m, dir) {
+            let hit = match displaced {
+                Some(r) => r.intersect_displaced(pose.camera_position_m, dir),
+                None => shape.intersect(pose.camera_position_m, dir),
+            };
+            if let Some(t) = hit {
                 *o = t;
             }
         }

@@ -393,7 +393,7 @@ fn render_in_pool(
 
     let depth_m = settings.depth.then(|| {
         let t0 = Instant::now();
-        let d = depth::depth_map(intr, &scene.body.shape, pose);
+        let d = depth::depth_map(intr, &scene.body.shape, scene.body.relief.as_ref(), pose);
         t.depth = ms(t0);
         d
     });

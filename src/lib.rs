@@ -13,7 +13,7 @@
 //! | [`body`] | the body's shape (sphere, triaxial ellipsoid; meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (normals, ray-marched shadows) and horizon maps |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
 //! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure |
-//! | [`detector`] | (P/L) -> signal -> electrons with noises -> DN (Eqs. 45-47) |
+//! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
@@ -21,7 +21,7 @@
 //! | [`pipeline`] | one pose's way to the screen: render -> signal -> stimulator -> simulated camera, timed per stage |
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
-//! | [`io`] | FITS and PNG outputs (in memory too), SHA-256 content hashes |
+//! | [`io`] | FITS and PNG outputs (in memory too), grayscale PNG input (photographs), SHA-256 content hashes |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
 //! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |

@@ -184,8 +184,7 @@ fn hold_and_trigger_present_on_demand() {
 #[test]
 fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
     use std::io::{BufRead, BufReader};
-    let dir = std::env::temp_dir().join(format!("optistim-sigterm-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("sigterm");
     let scene = dir.join("daemon.toml");
     std::fs::write(&scene, small_daemon_config()).unwrap();
     let record = dir.join("rec.jsonl");
@@ -236,5 +235,4 @@ fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
         [0, 1, 2, 3, 4]
     );
     assert_eq!(again[0], nrho_pose(0));
-    let _ = std::fs::remove_dir_all(&dir);
 }

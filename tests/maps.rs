@@ -267,18 +267,12 @@ fn a_normal_map_renders_as_the_dem_it_came_from() {
 /// decoded with scale = 2, shift = -1, renders as no relief (to its 1/65535 quantisation).
 #[test]
 fn an_rgb_normal_map_loads_through_the_config() {
-    let dir = std::env::temp_dir().join(format!("optistim-nm-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("nm");
     let tif = dir.join("normals.tif");
-    {
-        let f = std::fs::File::create(&tif).unwrap();
-        let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
-        let px: Vec<u16> = (0..32 * 16)
-            .flat_map(|_| [32768u16, 32768, 65535])
-            .collect();
-        enc.write_image::<tiff::encoder::colortype::RGB16>(32, 16, &px)
-            .unwrap();
-    }
+    let px: Vec<u16> = (0..32 * 16)
+        .flat_map(|_| [32768u16, 32768, 65535])
+        .collect();
+    write_tiff::<tiff::encoder::colortype::RGB16>(&tif, 32, 16, &px);
     let spec = SceneSpec {
         camera_m: [10.0 * R_MOON, 4.0 * R_MOON, 0.0],
         render: "integration = \"trapezoidal\"",
@@ -297,7 +291,6 @@ fn an_rgb_normal_map_loads_through_the_config() {
         total(&optistim::config::parse(text, "n.toml").unwrap_or_else(|e| panic!("{e}"))).0
     };
     let (tm, tp) = (t(&with_map), t(&base));
-    std::fs::remove_dir_all(&dir).ok();
     println!("flat RGB normal map vs none: {:.2e}", tm / tp - 1.0);
     assert!((tm / tp - 1.0).abs() < 1e-4, "{tm} vs {tp}");
     let bad = base.replacen(

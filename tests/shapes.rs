@@ -39,6 +39,19 @@ fn render(axis: usize, shape: &str) -> (f64, Vec<f64>, usize) {
     (f.pl.iter().sum(), f.pl, f.width)
 }
 
+/// `|b - a| / a` over the pixels where `a` exceeds 5 % of its peak, sorted.
+fn relative_differences(a: &[f64], b: &[f64]) -> Vec<f64> {
+    let peak = a.iter().cloned().fold(0.0, f64::max);
+    let mut rel: Vec<f64> = a
+        .iter()
+        .zip(b)
+        .filter(|(x, _)| **x > 0.05 * peak)
+        .map(|(x, y)| (x - y).abs() / x)
+        .collect();
+    rel.sort_by(f64::total_cmp);
+    rel
+}
+
 fn ellipsoid() -> String {
     format!("shape = \"ellipsoid\"\nsemi_axes_m = {AXES:?}\n")
 }
@@ -87,14 +100,7 @@ fn a_round_ellipsoid_renders_as_the_sphere() {
     let (s, ps, _) = render(0, &format!("radius_m = {R_MOON}\n"));
     let (e, pe, _) = render(0, &round);
     assert!((e / s - 1.0).abs() < 1e-3, "{e} vs {s}");
-    let peak = ps.iter().cloned().fold(0.0, f64::max);
-    let mut rel: Vec<f64> = ps
-        .iter()
-        .zip(&pe)
-        .filter(|(a, _)| **a > 0.05 * peak)
-        .map(|(a, b)| (a - b).abs() / a)
-        .collect();
-    rel.sort_by(f64::total_cmp);
+    let rel = relative_differences(&ps, &pe);
     let (median, p99) = (rel[rel.len() / 2], rel[rel.len() * 99 / 100]);
     println!(
         "round ellipsoid vs sphere: total {:.2e}, pixels median {median:.2e} p99 {p99:.2e}",
@@ -197,13 +203,7 @@ fn an_absolute_radius_dem_renders_as_the_shape_it_describes() {
     let sum = |v: &[f64]| v.iter().sum::<f64>();
     let (te, td, ts) = (sum(&pe), sum(&pd), sum(&ps));
     let peak = pe.iter().cloned().fold(0.0, f64::max);
-    let mut rel: Vec<f64> = pe
-        .iter()
-        .zip(&pd)
-        .filter(|(e, _)| **e > 0.05 * peak)
-        .map(|(e, d)| (e - d).abs() / e)
-        .collect();
-    rel.sort_by(f64::total_cmp);
+    let rel = relative_differences(&pe, &pd);
     let (median, p95) = (rel[rel.len() / 2], rel[rel.len() * 95 / 100]);
     let lit = |v: &[f64]| v.iter().filter(|&&x| x > 0.05 * peak).count();
     println!(
@@ -228,17 +228,11 @@ fn an_absolute_radius_dem_renders_as_the_shape_it_describes() {
 /// as radii (dem_values = "radius") in a float32 TIFF.
 #[test]
 fn a_displacing_dem_from_a_tiff_of_radii_is_the_bigger_sphere() {
-    let dir = std::env::temp_dir().join(format!("optistim-dem-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("dem");
     let tif = dir.join("radii.tif");
     let r2 = 1.1 * R_MOON;
-    {
-        let f = std::fs::File::create(&tif).unwrap();
-        let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
-        let data = vec![r2 as f32; 64 * 32];
-        enc.write_image::<tiff::encoder::colortype::Gray32Float>(64, 32, &data)
-            .unwrap();
-    }
+    let data = vec![r2 as f32; 64 * 32];
+    write_tiff::<tiff::encoder::colortype::Gray32Float>(&tif, 64, 32, &data);
     let spec = SceneSpec {
         albedo: 0.2,
         camera_m: [50.0 * R_MOON, 30.0 * R_MOON, 0.0],
@@ -275,7 +269,6 @@ fn a_displacing_dem_from_a_tiff_of_radii_is_the_bigger_sphere() {
     );
     assert!((td / tb - 1.0).abs() < 1e-4, "{td} vs {tb}");
     assert!((ts / tb - 1.0).abs() > 0.1);
-    std::fs::remove_dir_all(&dir).ok();
     // Displacement without a DEM is refused.
     let bad = base.replacen(
         "albedo_type = \"normal\"\n",

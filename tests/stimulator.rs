@@ -3,7 +3,7 @@
 //! compared with the image the flight camera would take in space.
 
 mod common;
-use common::rendered_signal;
+use common::{TempDir, rendered_signal, write_tiff};
 use optistim::config::{self, Config};
 use optistim::detector::noise::Noise;
 use optistim::stimulator::Stimulator;
@@ -271,18 +271,13 @@ fn a_non_uniformity_map_scales_what_the_camera_sees() {
         .capture(&shown.screen_dn, 0)
         .unwrap();
 
-    let dir = std::env::temp_dir().join(format!("optistim-nu-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("nu");
     let write = |name: &str, w: usize, h: usize| {
         let path = dir.join(name);
         let gains: Vec<f32> = (0..w * h)
             .map(|i| if i % w < w / 2 { 0.5 } else { 1.0 })
             .collect();
-        let file = std::fs::File::create(&path).unwrap();
-        tiff::encoder::TiffEncoder::new(file)
-            .unwrap()
-            .write_image::<tiff::encoder::colortype::Gray32Float>(w as u32, h as u32, &gains)
-            .unwrap();
+        write_tiff::<tiff::encoder::colortype::Gray32Float>(&path, w as u32, h as u32, &gains);
         path
     };
     let st_map = cfg.stimulator.as_mut().unwrap();
@@ -316,5 +311,4 @@ fn a_non_uniformity_map_scales_what_the_camera_sees() {
         .err()
         .expect("refused");
     assert!(e.to_string().contains("16 x 16 px"), "{e}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -29,11 +29,11 @@ pub fn run(
     max_shift_px: i64,
     out: Option<&Path>,
 ) -> Result<CompareReport, AppError> {
-    let (pw, ph, real_dn, _) = crate::io::read_png_gray(photo)?;
     let bytes = std::fs::read(photo).map_err(|source| crate::io::IoError::File {
         path: photo.display().to_string(),
         source,
     })?;
+    let (pw, ph, real_dn, _) = crate::io::decode_png_gray(photo, &bytes)?;
     let t0 = std::time::Instant::now();
     let mut renderer = Renderer::new(config.settings.threads)?;
     let frame = renderer.render(&config.scene, &config.pose, &config.settings)?;

@@ -546,9 +546,9 @@ impl Validator<'_> {
                                 "values this hapke body reaches with w <= 1",
                             )
                         })?;
-                        let w_map = map.with_values(w).or_else(|e| {
-                            self.err("body.albedo_map", m.path.as_str(), &e.to_string())
-                        })?;
+                        let w_map = map
+                            .with_values(w)
+                            .or_else(|e| self.unusable("body.albedo_map", m, e))?;
                         (w_map, 1.0)
                     }
                     Some(_) if matches!(brdf, Brdf::Hapke(_)) => {
@@ -567,99 +567,7 @@ impl Validator<'_> {
                 })
             }
         };
-        let relief = match &b.dem_map {
-            None => None,
-            Some(m) => {
-                let dem = self.map("body.dem_map", m)?;
-                let heights = match b.dem_values.as_deref().unwrap_or("height") {
-                    "height" => dem,
-                    "radius" => {
-                        let h = dem.values.iter().map(|&v| v as f64 - radius_m).collect();
-                        dem.with_values(h).or_else(|e| {
-                            self.err("body.dem_map", m.path.as_str(), &e.to_string())
-                        })?
-                    }
-                    other => {
-                        return self.err(
-                            "body.dem_values",
-                            other,
-                            "height (above radius_m) or radius (from the centre)",
-                        );
-                    }
-                };
-                let relief =
-                    crate::body::Relief::new(heights, radius_m, b.displacement).or_else(|e| {
-                        self.err(
-                            "body.dem_map",
-                            m.path.as_str(),
-                            &format!("a usable DEM ({e})"),
-                        )
-                    })?;
-                Some(match &b.horizon_map {
-                    None => relief,
-                    Some(h) => relief
-                        .with_horizon(self.map("body.horizon_map", h)?)
-                        .or_else(|e| {
-                            self.err("body.horizon_map", h.path.as_str(), &e.to_string())
-                        })?,
-                })
-            }
-        };
-        let relief =
-            match &b.normal_map {
-                None => {
-                    if b.normal_frame.is_some() {
-                        return self.err(
-                            "body.normal_frame",
-                            "without body.normal_map",
-                            "a normal map",
-                        );
-                    }
-                    relief
-                }
-                Some(m) => {
-                    use crate::body::NormalFrame;
-                    let frame = match self.choice(
-                        "body.normal_frame",
-                        b.normal_frame.as_deref().unwrap_or("local"),
-                        &["local", "body"],
-                    )? {
-                        "body" => NormalFrame::Body,
-                        _ => NormalFrame::Local,
-                    };
-                    let components = self.map_rgb("body.normal_map", m)?;
-                    // Without a DEM: a flat one on the normal map's grid, for the normals alone.
-                    let relief = match relief {
-                        Some(r) => r,
-                        None => {
-                            let flat = components[0]
-                                .with_values(vec![0.0; components[0].values.len()])
-                                .and_then(|h| crate::body::Relief::new(h, radius_m, false));
-                            flat.or_else(|e| {
-                                self.err("body.normal_map", m.path.as_str(), &e.to_string())
-                            })?
-                        }
-                    };
-                    Some(relief.with_normal_map(components, frame).or_else(|e| {
-                        self.err("body.normal_map", m.path.as_str(), &e.to_string())
-                    })?)
-                }
-            };
-        if b.dem_map.is_none() && (b.displacement || b.dem_values.is_some()) {
-            let key = if b.displacement {
-                "body.displacement"
-            } else {
-                "body.dem_values"
-            };
-            return self.err(key, "without body.dem_map", "a DEM to apply to");
-        }
-        if b.horizon_map.is_some() && b.dem_map.is_none() {
-            return self.err(
-                "body.horizon_map",
-                "without body.dem_map",
-                "a horizon map beside the DEM it was computed from",
-            );
-        }
+        let relief = self.relief(b, radius_m)?;
         Ok(Body {
             name: b.name.clone(),
             shape,
@@ -667,6 +575,98 @@ impl Validator<'_> {
             albedo_map,
             relief,
         })
+    }
+
+    /// The body's relief: its DEM (heights or radii from the centre, displacing or not), the
+    /// horizon map beside it and a normal map (alone, on a flat DEM of its grid, without one);
+    /// each refused without what it needs.
+    fn relief(&self, b: &RawBody, radius_m: f64) -> R<Option<crate::body::Relief>> {
+        use crate::body::{NormalFrame, Relief};
+        if b.dem_map.is_none() {
+            for (given, key, needs) in [
+                (b.displacement, "body.displacement", "a DEM to apply to"),
+                (
+                    b.dem_values.is_some(),
+                    "body.dem_values",
+                    "a DEM to apply to",
+                ),
+                (
+                    b.horizon_map.is_some(),
+                    "body.horizon_map",
+                    "a horizon map beside the DEM it was computed from",
+                ),
+            ] {
+                if given {
+                    return self.err(key, "without body.dem_map", needs);
+                }
+            }
+        }
+        if b.normal_map.is_none() && b.normal_frame.is_some() {
+            return self.err(
+                "body.normal_frame",
+                "without body.normal_map",
+                "a normal map",
+            );
+        }
+        let mut relief = match &b.dem_map {
+            None => None,
+            Some(m) => {
+                let dem = self.map("body.dem_map", m)?;
+                let heights = match self.choice(
+                    "body.dem_values",
+                    b.dem_values.as_deref().unwrap_or("height"),
+                    &["height", "radius"],
+                )? {
+                    "radius" => {
+                        let h = dem.values.iter().map(|&v| v as f64 - radius_m).collect();
+                        dem.with_values(h)
+                            .or_else(|e| self.unusable("body.dem_map", m, e))?
+                    }
+                    _ => dem,
+                };
+                let relief = Relief::new(heights, radius_m, b.displacement).or_else(|e| {
+                    self.err(
+                        "body.dem_map",
+                        m.path.as_str(),
+                        &format!("a usable DEM ({e})"),
+                    )
+                })?;
+                Some(match &b.horizon_map {
+                    None => relief,
+                    Some(h) => relief
+                        .with_horizon(self.map("body.horizon_map", h)?)
+                        .or_else(|e| self.unusable("body.horizon_map", h, e))?,
+                })
+            }
+        };
+        if let Some(m) = &b.normal_map {
+            let frame = match self.choice(
+                "body.normal_frame",
+                b.normal_frame.as_deref().unwrap_or("local"),
+                &["local", "body"],
+            )? {
+                "body" => NormalFrame::Body,
+                _ => NormalFrame::Local,
+            };
+            let components = self.map_rgb("body.normal_map", m)?;
+            let base = match relief {
+                Some(r) => r,
+                None => components[0]
+                    .with_values(vec![0.0; components[0].values.len()])
+                    .and_then(|h| Relief::new(h, radius_m, false))
+                    .or_else(|e| self.unusable("body.normal_map", m, e))?,
+            };
+            relief = Some(
+                base.with_normal_map(components, frame)
+                    .or_else(|e| self.unusable("body.normal_map", m, e))?,
+            );
+        }
+        Ok(relief)
+    }
+
+    /// A map that loaded but cannot serve: `key`, its path, and why.
+    fn unusable<T>(&self, key: &str, m: &raw::RawMap, e: crate::body::maps::MapError) -> R<T> {
+        self.err(key, m.path.as_str(), &e.to_string())
     }
 
     /// A map's encoding from its table; `key` names it in errors.

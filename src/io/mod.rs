@@ -60,18 +60,18 @@ pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Re
     std::fs::write(path, out).map_err(|source| IoError::File { path: p, source })
 }
 
-/// Reads a one-channel grayscale PNG (8 or 16 bit): `(width, height, DN, bit depth)`.
-pub fn read_png_gray(path: &Path) -> Result<(usize, usize, Vec<u16>, u32), IoError> {
+/// Decodes a one-channel grayscale PNG (8 or 16 bit) read from `path`: `(width, height, DN,
+/// bit depth)`.
+pub fn decode_png_gray(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(usize, usize, Vec<u16>, u32), IoError> {
     let p = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|source| IoError::File {
-        path: p.clone(),
-        source,
-    })?;
     let dec_err = |source| IoError::PngRead {
         path: p.clone(),
         source,
     };
-    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
         .read_info()
         .map_err(dec_err)?;
     let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];

@@ -61,25 +61,23 @@ pub enum ErrorCode {
 }
 
 impl ErrorCode {
+    /// The code sent as `v`; an unknown one reads as `Malformed`.
     pub fn from_u16(v: u16) -> ErrorCode {
         use ErrorCode::*;
-        [
-            Malformed,
-            BadCrc,
-            TooLong,
-            UnknownType,
-            BadVersion,
-            BadValue,
-            CameraInsideBody,
-            Render,
-            Busy,
-            BadConfig,
-            Truncated,
-            ShuttingDown,
-        ]
-        .into_iter()
-        .find(|c| *c as u16 == v)
-        .unwrap_or(Malformed)
+        match v {
+            2 => BadCrc,
+            3 => TooLong,
+            4 => UnknownType,
+            5 => BadVersion,
+            6 => BadValue,
+            7 => CameraInsideBody,
+            8 => Render,
+            9 => Busy,
+            10 => BadConfig,
+            11 => Truncated,
+            12 => ShuttingDown,
+            _ => Malformed,
+        }
     }
 }
 
@@ -261,13 +259,13 @@ impl Message {
             Message::Pose(p) => {
                 w.u64(p.frame_id);
                 w.f64(p.time_tag_s);
-                p.camera_position_m.iter().for_each(|&x| w.f64(x));
-                p.attitude_wxyz.iter().for_each(|&x| w.f64(x));
-                p.sun_position_m.iter().for_each(|&x| w.f64(x));
+                w.f64s(&p.camera_position_m);
+                w.f64s(&p.attitude_wxyz);
+                w.f64s(&p.sun_position_m);
                 w.u8(u8::from(p.body_attitude_wxyz.is_some())
                     | (u8::from(p.exposure_s.is_some()) << 1));
                 if let Some(q) = p.body_attitude_wxyz {
-                    q.iter().for_each(|&x| w.f64(x));
+                    w.f64s(&q);
                 }
                 if let Some(e) = p.exposure_s {
                     w.f64(e);
@@ -315,7 +313,12 @@ impl Message {
                 w.u32(*width);
                 w.u32(*height);
                 w.u8(*bit_depth);
-                w.0.extend_from_slice(bytemuck::cast_slice(dn));
+                // Little-endian on the wire, as read back: one copy where the host agrees.
+                if cfg!(target_endian = "little") {
+                    w.0.extend_from_slice(bytemuck::cast_slice(dn));
+                } else {
+                    dn.iter().for_each(|&x| w.u16(x));
+                }
             }
             Message::Error {
                 code,
@@ -342,15 +345,15 @@ impl Message {
             kind::POSE => {
                 let frame_id = r.u64()?;
                 let time_tag_s = r.f64()?;
-                let camera_position_m = [r.f64()?, r.f64()?, r.f64()?];
-                let attitude_wxyz = [r.f64()?, r.f64()?, r.f64()?, r.f64()?];
-                let sun_position_m = [r.f64()?, r.f64()?, r.f64()?];
+                let camera_position_m = r.f64s()?;
+                let attitude_wxyz = r.f64s()?;
+                let sun_position_m = r.f64s()?;
                 let flags = r.u8()?;
                 if flags & !3 != 0 {
                     return Err(malformed(format!("pose flags {flags:#04x}: only bits 0-1")));
                 }
                 let body_attitude_wxyz = if flags & 1 != 0 {
-                    Some([r.f64()?, r.f64()?, r.f64()?, r.f64()?])
+                    Some(r.f64s()?)
                 } else {
                     None
                 };
@@ -486,6 +489,9 @@ impl Writer {
     fn f64(&mut self, v: f64) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
+    fn f64s(&mut self, v: &[f64]) {
+        v.iter().for_each(|&x| self.f64(x));
+    }
     /// u16 length, then UTF-8 bytes (cut at 65535 bytes on a character boundary).
     fn str(&mut self, s: &str) {
         let mut end = s.len().min(u16::MAX as usize);
@@ -528,6 +534,13 @@ impl<'a> Reader<'a> {
     }
     fn f64(&mut self) -> Result<f64, ProtocolError> {
         Ok(f64::from_le_bytes(self.take(8)?.try_into().expect("8")))
+    }
+    fn f64s<const N: usize>(&mut self) -> Result<[f64; N], ProtocolError> {
+        let mut v = [0.0; N];
+        for x in &mut v {
+            *x = self.f64()?;
+        }
+        Ok(v)
     }
     fn str(&mut self) -> Result<String, ProtocolError> {
         let n = self.u16()? as usize;

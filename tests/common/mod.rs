@@ -284,3 +284,41 @@ pub fn rss_bytes() -> u64 {
         })
         .map_or(0, |kb| kb * 1024)
 }
+
+/// A fresh folder `optistim-{tag}-{pid}` under the system's temporary folder, removed when
+/// dropped (a failing test leaves nothing behind either).
+pub struct TempDir(pub std::path::PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> TempDir {
+        let dir = std::env::temp_dir().join(format!("optistim-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        TempDir(dir)
+    }
+
+    pub fn join(&self, name: &str) -> std::path::PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Writes a `width` x `height` TIFF of colour type `C` (e.g. `Gray32Float`, `RGB16`) to `path`.
+pub fn write_tiff<C: tiff::encoder::colortype::ColorType>(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    data: &[C::Inner],
+) where
+    [C::Inner]: tiff::encoder::TiffValue,
+{
+    let file = std::fs::File::create(path).unwrap();
+    tiff::encoder::TiffEncoder::new(file)
+        .unwrap()
+        .write_image::<C>(width, height, data)
+        .unwrap();
+}

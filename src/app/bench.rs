@@ -27,6 +27,9 @@ pub struct BenchReport {
     pub fps_slowest: f64,
     pub points_kept_median: usize,
     pub points_kept_max: usize,
+    /// Surface samples (BRDF evaluations) per frame, summed over the run: the integration's
+    /// cost independent of the machine's load.
+    pub surface_samples_total: usize,
     /// Mean time per stage [ms].
     pub mean_stage_ms: serde_json::Value,
     pub slowest_frame: u64,
@@ -38,8 +41,12 @@ pub struct FrameRow {
     pub t_s: f64,
     pub ms: f64,
     pub points_kept: usize,
+    pub surface_samples: usize,
     pub phase_deg: f64,
     pub covered_px: f64,
+    /// The renderer's stages [ms].
+    pub timings_ms: crate::render::StageTimings,
+    pub detector_ms: f64,
 }
 
 /// Renders up to `max_frames` poses of `trajectory` (default: the scene's own pose, 20 times)
@@ -70,6 +77,7 @@ pub fn run(
     let k = det.signal_factor(&config.scene.sun);
     let mut dn = Vec::new();
     let (mut times, mut points) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut surface_samples_total = 0;
     let mut stage_sum = serde_json::Map::new();
     for (t_s, pose) in poses.iter().take(n) {
         let t0 = Instant::now();
@@ -95,11 +103,15 @@ pub fn run(
             t_s: *t_s,
             ms,
             points_kept: frame.stats.points_kept,
+            surface_samples: frame.stats.surface_samples,
             phase_deg: frame.stats.phase_deg,
             covered_px: frame.stats.covered_px,
+            timings_ms: frame.stats.timings_ms,
+            detector_ms,
         });
         times.push((ms, pose.frame_id));
         points.push(frame.stats.points_kept);
+        surface_samples_total += frame.stats.surface_samples;
     }
     for v in stage_sum.values_mut() {
         *v = (v.as_f64().unwrap_or(0.0) / n.max(1) as f64).into();
@@ -122,6 +134,7 @@ pub fn run(
         fps_slowest: 1e3 / max,
         points_kept_median: points[points.len() / 2],
         points_kept_max: *points.last().unwrap_or(&0),
+        surface_samples_total,
         mean_stage_ms: serde_json::Value::Object(stage_sum),
         slowest_frame: slowest.1,
     })

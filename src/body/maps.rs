@@ -279,8 +279,15 @@ impl Map {
     #[inline]
     pub fn taps(&self, lon: f64, lat: f64) -> Option<Taps> {
         let mut x = (lon - self.lon0) / self.dlon - 0.5;
+        let w = self.width as f64;
         if self.wraps {
-            x = x.rem_euclid(self.width as f64);
+            // One period off at most for longitudes from `atan2`; `rem_euclid` (a libm
+            // `fmod`) only for others. Both give the same value.
+            if x < 0.0 && x + w >= 0.0 {
+                x += w;
+            } else if !(0.0..w).contains(&x) {
+                x = x.rem_euclid(w);
+            }
         } else if x < -0.5 || x > self.width as f64 - 0.5 {
             return None;
         }
@@ -288,13 +295,13 @@ impl Map {
         if y < -0.5 - 1e-12 || y > self.height as f64 - 0.5 + 1e-12 {
             return None;
         }
-        let x0 = x.floor();
-        let tx = x - x0;
+        let x0 = crate::geometry::floor_i64(x);
+        let tx = x - x0 as f64;
         let (c0, c1) = if self.wraps {
             let c0 = (x0 as isize).rem_euclid(self.width as isize) as usize;
             (c0, (c0 + 1) % self.width)
         } else {
-            let c0 = (x0.max(0.0) as usize).min(self.width - 1);
+            let c0 = (x0.max(0) as usize).min(self.width - 1);
             (c0, (c0 + 1).min(self.width - 1))
         };
         let row = |r: usize, w: f64| {
@@ -321,7 +328,7 @@ impl Map {
                 (row(last, 1.0), row(last, 0.0), (Pole::None, 0.0))
             }
         } else {
-            let r0 = y.floor() as usize;
+            let r0 = y as usize; // y >= 0 here: truncation is the floor
             let t = y - r0 as f64;
             (
                 row(r0, 1.0 - t),

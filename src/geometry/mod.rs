@@ -55,6 +55,14 @@ pub fn lon_lat(v: DVec3) -> (f64, f64) {
     (v.y.atan2(v.x), (v.z / r).clamp(-1.0, 1.0).asin())
 }
 
+/// `x.floor() as i64` for finite `x` of magnitude below 2^53, without a libm call (`floor` is
+/// not inlined on baseline x86-64 and showed in profiles).
+#[inline(always)]
+pub fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    t - ((t as f64) > x) as i64
+}
+
 /// Wraps an angle to (-pi, pi].
 #[inline]
 pub fn wrap_pi(a: f64) -> f64 {

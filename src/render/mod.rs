@@ -78,6 +78,8 @@ pub struct FrameStats {
     /// Quadrangles sampled (longitude x latitude).
     pub points_sampled: usize,
     pub points_kept: usize,
+    /// Surface samples the integration took (BRDF evaluations, lit or not): its cost.
+    pub surface_samples: usize,
     pub grid_lon: usize,
     pub grid_lat: usize,
     /// Estimated pixels covered by lit, visible surface.
@@ -110,9 +112,11 @@ struct Buffers {
     verts: Vec<[f64; 2]>,
     /// Per gridding band: fixed-point rows and the kernel's scratch.
     scratch: Vec<(Vec<i64>, Vec<f64>)>,
-    /// Gridding: (first row, last row) of each footprint, per pixel row a count then its band,
-    /// and the footprints of each band (flat, from `band_start[b]`).
+    /// Gridding: (first row, last row) and (first column, last column) of each footprint, per
+    /// pixel row a count then its band, and the footprints of each band (flat, from
+    /// `band_start[b]`).
     rows: Vec<(u32, u32)>,
+    cols: Vec<(u32, u32)>,
     row_band: Vec<u32>,
     band_start: Vec<usize>,
     band_items: Vec<u32>,
@@ -327,7 +331,7 @@ fn render_in_pool(
         let t0 = Instant::now();
         let a_sun = scene.sun.area_m2();
         let a_cam = intr.aperture_area_m2();
-        let total = integration::integrate(
+        let (total, samples) = integration::integrate(
             &view,
             &trig,
             &buf.keep,
@@ -341,6 +345,7 @@ fn render_in_pool(
             &mut buf.pl,
         );
         stats.total_pl_points = total;
+        stats.surface_samples = samples;
         t.integration = ms(t0);
         if !total.is_finite() {
             return Err(RenderError::NonFinite {
@@ -527,36 +532,64 @@ fn grid(
         [v(i, k), v(i + 1, k), v(i + 1, k + 1), v(i, k + 1)]
     };
 
-    // The pixel rows each footprint's kernel can reach (`u32::MAX`: none).
-    let rows = &mut buf.rows;
+    // The pixel rows and columns each footprint's kernel can reach (`u32::MAX`: none).
+    let (rows, cols) = (&mut buf.rows, &mut buf.cols);
     rows.clear();
     rows.resize(keep.len(), (u32::MAX, 0));
-    rows.par_iter_mut().enumerate().for_each(|(j, r)| {
-        if keep[j] == PRUNED || pl[j] == 0.0 {
-            return;
-        }
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        let mut grow = |p: [f64; 2]| {
-            if p[0].is_finite() && p[1].is_finite() {
-                lo = lo.min(p[1]);
-                hi = hi.max(p[1]);
+    cols.clear();
+    cols.resize(keep.len(), (u32::MAX, 0));
+    rows.par_iter_mut()
+        .zip(cols.par_iter_mut())
+        .enumerate()
+        .for_each(|(j, (r, c))| {
+            if keep[j] == PRUNED || pl[j] == 0.0 {
+                return;
             }
-        };
-        grow(mids[j]);
-        if corners_needed {
-            corners(j).into_iter().for_each(&mut grow);
-        } else if !mids[j][0].is_finite() {
-            return;
-        }
-        if lo > hi {
-            return;
-        }
-        let r0 = (floor_i64(lo) - reach).max(0);
-        let r1 = (floor_i64(hi) + reach).min(gh as i64 - 1);
-        if r0 <= r1 {
-            *r = (r0 as u32, r1 as u32);
-        }
-    });
+            let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+            let mut grow = |p: [f64; 2]| {
+                if p[0].is_finite() && p[1].is_finite() {
+                    for a in 0..2 {
+                        lo[a] = lo[a].min(p[a]);
+                        hi[a] = hi[a].max(p[a]);
+                    }
+                }
+            };
+            grow(mids[j]);
+            if corners_needed {
+                corners(j).into_iter().for_each(&mut grow);
+            } else if !mids[j][0].is_finite() {
+                return;
+            }
+            if lo[1] > hi[1] {
+                return;
+            }
+            let span = |a: usize, n: usize| {
+                let first = (floor_i64(lo[a]) - reach).max(0);
+                let last = (floor_i64(hi[a]) + reach).min(n as i64 - 1);
+                (first <= last).then_some((first as u32, last as u32))
+            };
+            if let (Some(rs), Some(cs)) = (span(1, gh), span(0, gw)) {
+                *r = rs;
+                *c = cs;
+            }
+        });
+    // The window every footprint falls in: only it is accumulated and converted (at far range
+    // a few thousand pixels of the million).
+    let (c0, c1) = cols
+        .par_iter()
+        .filter(|c| c.0 != u32::MAX)
+        .map(|&c| c)
+        .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
+    let (r0, r1) = rows
+        .par_iter()
+        .filter(|r| r.0 != u32::MAX)
+        .map(|&r| r)
+        .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
+    if c0 == u32::MAX {
+        return out;
+    }
+    let (c0, wc) = (c0 as usize, (c1 - c0) as usize + 1);
+    let (r0, r1) = (r0 as usize, r1 as usize + 1);
 
     let bounds = plan_bands(
         rows,
@@ -585,15 +618,20 @@ fn grid(
         .zip(rows_out)
         .enumerate()
         .for_each(|(b, ((fixed, cells), band_out))| {
+            // This band's rows within the window.
+            let (y0, y1) = (bounds[b].max(r0), bounds[b + 1].min(r1));
+            if y0 >= y1 {
+                return;
+            }
             fixed.clear();
-            fixed.resize(band_out.len(), 0);
+            fixed.resize((y1 - y0) * wc, 0);
             let mut acc = Accum {
                 data: fixed,
                 cells,
-                x0: 0,
-                y0: bounds[b] as i64,
-                w: gw as i64,
-                h: (bounds[b + 1] - bounds[b]) as i64,
+                x0: c0 as i64,
+                y0: y0 as i64,
+                w: wc as i64,
+                h: (y1 - y0) as i64,
                 scale,
             };
             for &j in &items[starts[b]..starts[b + 1]] {
@@ -606,8 +644,11 @@ fn grid(
                 kernel.splat(&c, mids[j], pl[j], slope.as_ref(), &mut acc);
             }
             let inv = 1.0 / scale;
-            for (o, &s) in band_out.iter_mut().zip(fixed.iter()) {
-                *o = s as f64 * inv;
+            for (y, src) in fixed.chunks_exact(wc).enumerate() {
+                let row = (y0 + y - bounds[b]) * gw + c0;
+                for (o, &s) in band_out[row..row + wc].iter_mut().zip(src) {
+                    *o = s as f64 * inv;
+                }
             }
         });
     out

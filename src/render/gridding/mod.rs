@@ -78,13 +78,7 @@ impl Gridding {
     }
 }
 
-/// `x.floor() as i64` for finite `x` of magnitude below 2^53, without a libm call (`floor` is
-/// not inlined on baseline x86-64 and showed in profiles).
-#[inline(always)]
-pub(crate) fn floor_i64(x: f64) -> i64 {
-    let t = x as i64;
-    t - ((t as f64) > x) as i64
-}
+pub(crate) use crate::geometry::floor_i64;
 
 /// A fixed-point accumulation window `[x0, x0 + w) x [y0, y0 + h)` of a grid of
 /// `grid_w x grid_h` pixels; contributions outside the grid are dropped.

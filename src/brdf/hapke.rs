@@ -107,11 +107,15 @@ impl Hapke {
         let gamma = (1.0 - self.w).sqrt();
         let r0 = (1.0 - gamma) / (1.0 + gamma);
         let m = h2002_r0(self.w, r0, rough.mu0e / k) * h2002_r0(self.w, r0, rough.mue / k) - 1.0;
-        let r = k * self.w * 0.25 * FRAC_1_PI * rough.mu0e / (rough.mu0e + rough.mue)
+        // One division for `... mu0e / (mu0e + mue) ... / mu0` (divisions dominated the profile).
+        k * self.w
+            * 0.25
+            * FRAC_1_PI
+            * rough.mu0e
             * (self.phase_function(cos_g) * (1.0 + b_s) + m)
             * (1.0 + b_c)
-            * rough.s;
-        r / mu0
+            * rough.s
+            / ((rough.mu0e + rough.mue) * mu0)
     }
 
     /// The two-term Henyey-Greenstein phase function at phase angle `g` (`cos_g`).
@@ -189,7 +193,7 @@ impl Roughness {
             let mue = chi * (mu + sin_e * tan_t * (cos_psi * e2_i + sin2_half * e2_e) / d);
             (mu0e, mue, mu / eta)
         };
-        let s = mue / eta * mu0 / eta0 * chi / (1.0 - f + f * chi * shadow);
+        let s = mue * mu0 * chi / (eta * eta0 * (1.0 - f + f * chi * shadow));
         Roughness { mu0e, mue, s }
     }
 }

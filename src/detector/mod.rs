@@ -92,13 +92,13 @@ impl Detector {
         };
         dn_out.clear();
         dn_out.resize(signal_e_per_s.len(), 0);
-        let max_dn = self.adc_max_dn();
-        let drop_bits = self.bit_depth - self.saved_bits;
         let t = self.exposure_s;
         let noise = &self.noise;
         let seed = self.seed;
         let fixed = noise.prnu.is_some() || noise.dark.is_some();
         let temporal = noise.shot.is_some() || noise.dark.is_some() || noise.readout.is_some();
+        // Without fixed patterns a pixel that collects nothing sees the readout noise alone.
+        let dark_dn = if fixed { None } else { self.dark_dn() };
         dn_out
             .par_chunks_mut(4096)
             .enumerate()
@@ -114,6 +114,12 @@ impl Detector {
                     temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), c));
                 for (k, dn) in out.iter_mut().enumerate() {
                     let mut s = signal_e_per_s[base + k];
+                    if s == 0.0
+                        && let (Some(d), Some(r)) = (&dark_dn, temporal_rng.as_mut())
+                    {
+                        *dn = d.draw(r);
+                        continue;
+                    }
                     if let (Some(prnu), Some(r)) = (&noise.prnu, fixed_rng.as_mut()) {
                         s *= prnu.gain(r);
                     }
@@ -129,14 +135,87 @@ impl Detector {
                             e += ro.draw(r);
                         }
                     }
-                    let e = e.clamp(0.0, self.full_well_e);
-                    // Round half up (the value is clamped to >= 0 first; libm's `round` is not inlined).
-                    let adc = ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn)
-                        + 0.5)
-                        .min(max_dn) as u16;
-                    *dn = adc >> drop_bits;
+                    *dn = self.dn(e);
                 }
             });
+    }
+
+    /// The DN of `e` collected electrons: full-well cap (Eq. 46), then the ADC with rounding to
+    /// the nearest integer (half up) and its bit-depth cap (Eq. 47), then the saved bits.
+    #[inline]
+    fn dn(&self, e: f64) -> u16 {
+        let max_dn = self.adc_max_dn();
+        let e = e.clamp(0.0, self.full_well_e);
+        // The value is clamped to >= 0 first, so `+ 0.5` and truncation round half up (libm's
+        // `round` is not inlined).
+        let adc = ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn) + 0.5)
+            .min(max_dn) as u16;
+        adc >> (self.bit_depth - self.saved_bits)
+    }
+
+    /// The DN distribution of a pixel that collects no electrons and sees readout noise alone
+    /// (`max(0, sigma n)` electrons, `n` standard normal; shot noise on nothing is nothing),
+    /// for [`DarkDn::draw`]. `None` when such a pixel's DN spreads over more than 64 values.
+    fn dark_dn(&self) -> Option<DarkDn> {
+        let sigma = self.noise.readout.map_or(0.0, |r| r.sigma_e);
+        let first = self.dn(0.0);
+        let gain = self.adc_gain_dn_per_e;
+        if sigma <= 0.0 || gain <= 0.0 {
+            return Some(DarkDn {
+                below: vec![u64::MAX],
+                values: vec![first],
+            });
+        }
+        let max_dn = self.adc_max_dn();
+        let first_code = ((self.offset_dn.clamp(0.0, max_dn) + 0.5).min(max_dn)) as u32;
+        let last_code = ((self.offset_dn + gain * self.full_well_e).clamp(0.0, max_dn) + 0.5)
+            .min(max_dn) as u32;
+        let drop = self.bit_depth - self.saved_bits;
+        let (mut below, mut values) = (Vec::new(), Vec::new());
+        for code in first_code..=last_code {
+            // P(ADC code <= code): the electrons stay below the next code's edge.
+            let edge_e = (code as f64 + 0.5 - self.offset_dn) / gain;
+            let p = if code == last_code {
+                1.0
+            } else {
+                0.5 * libm::erfc(-edge_e / sigma / std::f64::consts::SQRT_2)
+            };
+            let b = if p >= 1.0 {
+                u64::MAX
+            } else {
+                (p * 18_446_744_073_709_551_616.0) as u64
+            };
+            below.push(b);
+            values.push((code >> drop) as u16);
+            if b == u64::MAX {
+                return Some(DarkDn { below, values });
+            }
+            if below.len() == 64 {
+                return None;
+            }
+        }
+        None
+    }
+}
+
+/// The exact DN distribution of a pixel that collects nothing ([`Detector::dark_dn`]): most
+/// of a frame's pixels. One uniform draw and a few comparisons give its DN, instead of a
+/// normal draw and the ADC (which cost most of an exposure).
+struct DarkDn {
+    /// `P(DN <= values[k])` in units of 2^-64; the last is `u64::MAX`.
+    below: Vec<u64>,
+    values: Vec<u16>,
+}
+
+impl DarkDn {
+    #[inline]
+    fn draw(&self, r: &mut impl rand::Rng) -> u16 {
+        if self.values.len() == 1 {
+            return self.values[0];
+        }
+        let u = r.next_u64();
+        let k = self.below.iter().position(|&b| u < b);
+        self.values[k.unwrap_or(self.values.len() - 1)]
     }
 }
 
@@ -194,5 +273,56 @@ mod tests {
         let mut c = Vec::new();
         d.expose(&s, (200, 100), 8, &mut c);
         assert_ne!(a, c, "temporal noise must change with the frame");
+    }
+
+    /// Pixels that collect nothing get their DN from the exact table ([`Detector::dark_dn`]);
+    /// pixels with a vanishing signal take the general path (a normal draw, then the ADC).
+    /// Both histograms match the analytic one: `P(DN <= d) = Phi(edge_d / sigma)`.
+    #[test]
+    fn dark_pixels_follow_the_readout_noise_distribution() {
+        let d = Detector {
+            adc_gain_dn_per_e: 0.2,
+            offset_dn: 8.0,
+            ..det(Noise {
+                shot: Some(noise::Shot),
+                readout: Some(noise::Readout { sigma_e: 3.0 }),
+                ..Default::default()
+            })
+        };
+        let n = 400_000;
+        let (mut table, mut general) = (Vec::new(), Vec::new());
+        d.expose(&vec![0.0; n], (1000, 400), 1, &mut table);
+        d.expose(&vec![1e-300; n], (1000, 400), 1, &mut general);
+        let histogram = |dn: &[u16]| {
+            let mut h = [0usize; 16];
+            dn.iter().for_each(|&v| h[(v as usize).min(15)] += 1);
+            h
+        };
+        let phi = |x: f64| 0.5 * libm::erfc(-x / std::f64::consts::SQRT_2);
+        let cdf = |dn: usize| {
+            if dn < 8 {
+                0.0
+            } else {
+                phi((dn as f64 + 0.5 - 8.0) / 0.2 / 3.0)
+            }
+        };
+        for (name, h) in [
+            ("table", histogram(&table)),
+            ("general", histogram(&general)),
+        ] {
+            for (dn, &count) in h.iter().enumerate() {
+                let p = cdf(dn) - if dn == 0 { 0.0 } else { cdf(dn - 1) };
+                let expected = n as f64 * p;
+                let tolerance = 5.0 * (expected * (1.0 - p)).sqrt() + 1.0;
+                assert!(
+                    (count as f64 - expected).abs() < tolerance,
+                    "{name}: DN {dn}: {count} vs {expected:.0}"
+                );
+            }
+        }
+        assert!(
+            histogram(&table)[8] > n / 2,
+            "most dark pixels at the offset"
+        );
     }
 }

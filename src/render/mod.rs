@@ -575,16 +575,13 @@ fn grid(
         });
     // The window every footprint falls in: only it is accumulated and converted (at far range
     // a few thousand pixels of the million).
-    let (c0, c1) = cols
-        .par_iter()
-        .filter(|c| c.0 != u32::MAX)
-        .map(|&c| c)
-        .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
-    let (r0, r1) = rows
-        .par_iter()
-        .filter(|r| r.0 != u32::MAX)
-        .map(|&r| r)
-        .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
+    let union = |spans: &[(u32, u32)]| {
+        spans
+            .par_iter()
+            .copied()
+            .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)))
+    };
+    let ((c0, c1), (r0, r1)) = (union(cols), union(rows));
     if c0 == u32::MAX {
         return out;
     }

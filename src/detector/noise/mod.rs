@@ -2,6 +2,8 @@
 //! generator seeded by `(seed, stream, frame, block of 4096 pixels)` and drawn in pixel order,
 //! so a frame does not depend on thread scheduling, and fixed-pattern noises (PRNU,
 //! dark-signal non-uniformity) stay put from frame to frame (their seed omits the frame).
+//! Without fixed patterns, a pixel that collects nothing takes its DN from the exact
+//! distribution of readout noise through the ADC, one uniform draw (`detector::DarkDn`).
 
 pub mod dark;
 pub mod prnu;

@@ -282,3 +282,71 @@ fn a_displacing_dem_from_a_tiff_of_radii_is_the_bigger_sphere() {
         other => panic!("{other:?}"),
     }
 }
+
+/// DEM heights above an ellipsoid (`shape = "ellipsoid"` with `dem_map`, Vesta-like): a DEM of
+/// zeros on a 720 x 360 grid, through the config, renders as the triaxial ellipsoid itself
+/// (the heights become radii at the texel centres); without displacement it is refused.
+#[test]
+fn dem_heights_above_an_ellipsoid_keep_its_shape() {
+    let dir = TempDir::new("ellipsoid_dem");
+    let tif = dir.join("zero_heights.tif");
+    let (w, h) = (720, 360);
+    write_tiff::<tiff::encoder::colortype::Gray32Float>(
+        &tif,
+        w,
+        h,
+        &vec![0.0f32; (w * h) as usize],
+    );
+    let spec = SceneSpec {
+        albedo: 0.2,
+        camera_m: [60.0 * R_MOON, 35.0 * R_MOON, 20.0 * R_MOON],
+        sun_m: [AU, 0.3 * AU, 0.0],
+        resolution: [512, 512],
+        focal_m: 0.06,
+        render: "points_per_pixel = 1.0\nintegration = \"trapezoidal\"",
+        ..Default::default()
+    };
+    let sphere = spec.toml();
+    let ell = sphere.replacen(&format!("radius_m = {R_MOON}\n"), &ellipsoid(), 1);
+    let with_dem = |displacement: bool| {
+        ell.replacen(
+            "albedo_type = \"normal\"\n",
+            &format!(
+                "albedo_type = \"normal\"\ndem_map = {{ path = {:?} }}\ndisplacement = {displacement}\n",
+                tif.display().to_string()
+            ),
+            1,
+        )
+    };
+    let render = |text: &str| {
+        let cfg = optistim::config::parse(text, "ell.toml").unwrap_or_else(|e| panic!("{e}"));
+        Renderer::new(0)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &cfg.settings)
+            .unwrap()
+            .pl
+    };
+    let (pe, pd, ps) = (render(&ell), render(&with_dem(true)), render(&sphere));
+    let sum = |v: &[f64]| v.iter().sum::<f64>();
+    let (te, td, ts) = (sum(&pe), sum(&pd), sum(&ps));
+    let rel = relative_differences(&pe, &pd);
+    let (median, p95) = (rel[rel.len() / 2], rel[rel.len() * 95 / 100]);
+    println!(
+        "zero heights above the ellipsoid vs the ellipsoid: total {:.2e} (the sphere is {:.2e} \
+         off), pixels median {median:.2e} p95 {p95:.2e}",
+        td / te - 1.0,
+        ts / te - 1.0
+    );
+    assert!((td / te - 1.0).abs() < 5e-4, "{td} vs {te}");
+    assert!(
+        (ts / te - 1.0).abs() > 0.05,
+        "the test must tell the shapes apart"
+    );
+    assert!(median < 1e-3 && p95 < 5e-3, "{median} {p95}");
+    match optistim::config::parse(&with_dem(false), "ell.toml") {
+        Err(optistim::config::ConfigError::Invalid { key, .. }) => {
+            assert_eq!(key, "body.displacement")
+        }
+        other => panic!("heights above an ellipsoid without displacement: {other:?}"),
+    }
+}

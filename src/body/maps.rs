@@ -254,6 +254,15 @@ impl Map {
         Map::from_values(&self.file, self.width, self.height, values, &enc)
     }
 
+    /// Longitude and latitude [rad] of the centre of texel `(col, row)` (row 0 at the north
+    /// limit), where [`Map::taps`] puts all the weight on it.
+    pub fn texel_centre(&self, col: usize, row: usize) -> (f64, f64) {
+        (
+            self.lon0 + (col as f64 + 0.5) * self.dlon,
+            self.lat_top - (row as f64 + 0.5) * self.dlat,
+        )
+    }
+
     /// The area-weighted mean value.
     pub fn mean(&self) -> f64 {
         let (mut s, mut a) = (0.0, 0.0);

@@ -416,13 +416,6 @@ impl Validator<'_> {
                             "absent for an ellipsoid (its size is semi_axes_m)",
                         );
                     }
-                    if b.dem_map.is_some() {
-                        return self.err(
-                            "body.dem_map",
-                            "on an ellipsoid",
-                            "a sphere (DEM heights are above body.radius_m)",
-                        );
-                    }
                     let e = crate::body::Ellipsoid {
                         semi_axes_m: glam::DVec3::from_array(axes),
                     };
@@ -567,7 +560,11 @@ impl Validator<'_> {
                 })
             }
         };
-        let relief = self.relief(b, radius_m)?;
+        let base = match &shape {
+            Shape::Ellipsoid(e) => Some(*e),
+            _ => None,
+        };
+        let relief = self.relief(b, radius_m, base.as_ref())?;
         Ok(Body {
             name: b.name.clone(),
             shape,
@@ -580,7 +577,17 @@ impl Validator<'_> {
     /// The body's relief: its DEM (heights or radii from the centre, displacing or not), the
     /// horizon map beside it and a normal map (alone, on a flat DEM of its grid, without one);
     /// each refused without what it needs.
-    fn relief(&self, b: &RawBody, radius_m: f64) -> R<Option<crate::body::Relief>> {
+    ///
+    /// On an ellipsoid (`base`), heights are above its surface along the direction from the
+    /// centre: they become radii once, at each texel's centre, so the relief displaces around
+    /// `radius_m` (the longest semi-axis) as a DEM of radii would, and carries the ellipsoid's
+    /// shape in its normals and bounding.
+    fn relief(
+        &self,
+        b: &RawBody,
+        radius_m: f64,
+        base: Option<&crate::body::Ellipsoid>,
+    ) -> R<Option<crate::body::Relief>> {
         use crate::body::{NormalFrame, Relief};
         if b.dem_map.is_none() {
             for (given, key, needs) in [
@@ -622,7 +629,28 @@ impl Validator<'_> {
                         dem.with_values(h)
                             .or_else(|e| self.unusable("body.dem_map", m, e))?
                     }
-                    _ => dem,
+                    _ => match base {
+                        None => dem,
+                        Some(_) if !b.displacement => {
+                            return self.err(
+                                "body.displacement",
+                                "false with DEM heights above an ellipsoid",
+                                "true (the heights are above the ellipsoid's surface, which only \
+                                 the displaced DEM carries)",
+                            );
+                        }
+                        Some(e) => {
+                            let h = (0..dem.values.len())
+                                .map(|i| {
+                                    let (lon, lat) = dem.texel_centre(i % dem.width, i / dem.width);
+                                    let up = crate::geometry::unit_from_lon_lat(lon, lat);
+                                    e.surface(up).0.length() + dem.values[i] as f64 - radius_m
+                                })
+                                .collect();
+                            dem.with_values(h)
+                                .or_else(|e| self.unusable("body.dem_map", m, e))?
+                        }
+                    },
                 };
                 let relief = Relief::new(heights, radius_m, b.displacement).or_else(|e| {
                     self.err(

@@ -52,6 +52,20 @@ fn relative_differences(a: &[f64], b: &[f64]) -> Vec<f64> {
     rel
 }
 
+/// A body of albedo 0.2 seen obliquely from 72 R at 21 deg phase through a 60 mm lens
+/// (512 x 512), trapezoidal rule: the DEM-shape comparisons' scene.
+fn oblique_view() -> SceneSpec<'static> {
+    SceneSpec {
+        albedo: 0.2,
+        camera_m: [60.0 * R_MOON, 35.0 * R_MOON, 20.0 * R_MOON],
+        sun_m: [AU, 0.3 * AU, 0.0],
+        resolution: [512, 512],
+        focal_m: 0.06,
+        render: "points_per_pixel = 1.0\nintegration = \"trapezoidal\"",
+        ..Default::default()
+    }
+}
+
 fn ellipsoid() -> String {
     format!("shape = \"ellipsoid\"\nsemi_axes_m = {AXES:?}\n")
 }
@@ -156,15 +170,7 @@ fn an_absolute_radius_dem_renders_as_the_shape_it_describes() {
     use optistim::body::maps::{Encoding, Map};
     use optistim::body::{Relief, Shape};
     let (a, c) = (1.25 * R_MOON, 0.8 * R_MOON);
-    let spec = SceneSpec {
-        albedo: 0.2,
-        camera_m: [60.0 * R_MOON, 35.0 * R_MOON, 20.0 * R_MOON],
-        sun_m: [AU, 0.3 * AU, 0.0],
-        resolution: [512, 512],
-        focal_m: 0.06,
-        render: "points_per_pixel = 1.0\nintegration = \"trapezoidal\"",
-        ..Default::default()
-    };
+    let spec = oblique_view();
     let sphere = spec.config();
     // The ellipsoid, analytic.
     let mut ell = sphere.clone();
@@ -297,15 +303,7 @@ fn dem_heights_above_an_ellipsoid_keep_its_shape() {
         h,
         &vec![0.0f32; (w * h) as usize],
     );
-    let spec = SceneSpec {
-        albedo: 0.2,
-        camera_m: [60.0 * R_MOON, 35.0 * R_MOON, 20.0 * R_MOON],
-        sun_m: [AU, 0.3 * AU, 0.0],
-        resolution: [512, 512],
-        focal_m: 0.06,
-        render: "points_per_pixel = 1.0\nintegration = \"trapezoidal\"",
-        ..Default::default()
-    };
+    let spec = oblique_view();
     let sphere = spec.toml();
     let ell = sphere.replacen(&format!("radius_m = {R_MOON}\n"), &ellipsoid(), 1);
     let with_dem = |displacement: bool| {

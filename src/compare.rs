@@ -122,12 +122,7 @@ pub fn compare(
     // window (a stray hot pixel or star far from the body must not widen it).
     let rb = bounding_box(rendered, |v| v > 0.0).ok_or(CompareError::Empty("rendered"))?;
     let m = max_shift_px + 6;
-    let bx = Box2 {
-        x0: (rb.x0 - m).max(0),
-        y0: (rb.y0 - m).max(0),
-        x1: (rb.x1 + m).min(w as i64 - 1),
-        y1: (rb.y1 + m).min(h as i64 - 1),
-    };
+    let bx = rb.moved((-m, -m), (m, m)).clipped(w, h);
     let sky = median(&real.dn);
     if !real.dn.iter().any(|&v| v > sky) {
         return Err(CompareError::Empty("real"));
@@ -145,12 +140,7 @@ pub fn compare(
         }
     }
     let aligned = rendered.shifted(shift.0, shift.1);
-    let bx = Box2 {
-        x0: (bx.x0 + shift.0).max(0),
-        y0: (bx.y0 + shift.1).max(0),
-        x1: (bx.x1 + shift.0).min(w as i64 - 1),
-        y1: (bx.y1 + shift.1).min(h as i64 - 1),
-    };
+    let bx = bx.moved(shift, shift).clipped(w, h);
 
     // Work on the box only: crop both images.
     let crop = |img: &Gray| -> Gray {
@@ -277,6 +267,26 @@ impl Box2 {
     }
     fn height(&self) -> usize {
         (self.y1 - self.y0 + 1) as usize
+    }
+
+    /// This box with `low` added to its low corner and `high` to its high one.
+    fn moved(&self, low: (i64, i64), high: (i64, i64)) -> Box2 {
+        Box2 {
+            x0: self.x0 + low.0,
+            y0: self.y0 + low.1,
+            x1: self.x1 + high.0,
+            y1: self.y1 + high.1,
+        }
+    }
+
+    /// This box within a `w x h` image.
+    fn clipped(&self, w: usize, h: usize) -> Box2 {
+        Box2 {
+            x0: self.x0.max(0),
+            y0: self.y0.max(0),
+            x1: self.x1.min(w as i64 - 1),
+            y1: self.y1.min(h as i64 - 1),
+        }
     }
 }
 

@@ -279,25 +279,26 @@ fn an_rgb_normal_map_loads_through_the_config() {
         ..Default::default()
     };
     let base = spec.toml();
-    let with_map = base.replacen(
-        "albedo_type = \"normal\"\n",
-        &format!(
-            "albedo_type = \"normal\"\nnormal_map = {{ path = {:?}, scale = 2.0, shift = -1.0 }}\nnormal_frame = \"local\"\n",
-            tif.display().to_string()
-        ),
-        1,
+    let keys = format!(
+        "normal_map = {{ path = {:?}, scale = 2.0, shift = -1.0 }}\nnormal_frame = \"local\"",
+        tif.display().to_string()
     );
+    let with_map = SceneSpec {
+        body: &keys,
+        ..spec
+    }
+    .toml();
     let t = |text: &str| {
         total(&optistim::config::parse(text, "n.toml").unwrap_or_else(|e| panic!("{e}"))).0
     };
     let (tm, tp) = (t(&with_map), t(&base));
     println!("flat RGB normal map vs none: {:.2e}", tm / tp - 1.0);
     assert!((tm / tp - 1.0).abs() < 1e-4, "{tm} vs {tp}");
-    let bad = base.replacen(
-        "albedo_type = \"normal\"\n",
-        "albedo_type = \"normal\"\nnormal_frame = \"body\"\n",
-        1,
-    );
+    let bad = SceneSpec {
+        body: "normal_frame = \"body\"",
+        ..spec
+    }
+    .toml();
     match optistim::config::parse(&bad, "n.toml") {
         Err(optistim::config::ConfigError::Invalid { key, .. }) => {
             assert_eq!(key, "body.normal_frame")

@@ -28,15 +28,23 @@ fn render(axis: usize, shape: &str) -> (f64, Vec<f64>, usize) {
         render: "points_per_pixel = 1.0",
         ..Default::default()
     };
-    let text = spec
-        .toml()
-        .replace(&format!("radius_m = {R_MOON}\n"), shape);
-    let cfg = optistim::config::parse(&text, "shape.toml").unwrap_or_else(|e| panic!("{e}"));
-    let f = Renderer::new(0)
+    let pl = image(&reshaped(spec.toml(), shape));
+    (pl.iter().sum(), pl, spec.resolution[0] as usize)
+}
+
+/// A scene TOML with its sphere's `radius_m` line replaced by `shape`'s keys.
+fn reshaped(text: String, shape: &str) -> String {
+    text.replacen(&format!("radius_m = {R_MOON}\n"), shape, 1)
+}
+
+/// The (P/L) image of a scene TOML.
+fn image(text: &str) -> Vec<f64> {
+    let cfg = optistim::config::parse(text, "shape.toml").unwrap_or_else(|e| panic!("{e}"));
+    Renderer::new(0)
         .unwrap()
         .render(&cfg.scene, &cfg.pose, &cfg.settings)
-        .unwrap();
-    (f.pl.iter().sum(), f.pl, f.width)
+        .unwrap()
+        .pl
 }
 
 /// `|b - a| / a` over the pixels where `a` exceeds 5 % of its peak, sorted.
@@ -246,27 +254,17 @@ fn a_displacing_dem_from_a_tiff_of_radii_is_the_bigger_sphere() {
         ..Default::default()
     };
     let base = spec.toml();
-    let dem = base.replacen(
-        "albedo_type = \"normal\"\n",
-        &format!(
-            "albedo_type = \"normal\"\ndem_map = {{ path = {:?} }}\ndem_values = \"radius\"\ndisplacement = true\n",
-            tif.display().to_string()
-        ),
-        1,
+    let keys = format!(
+        "dem_map = {{ path = {:?} }}\ndem_values = \"radius\"\ndisplacement = true",
+        tif.display().to_string()
     );
-    let big = base.replacen(
-        &format!("radius_m = {R_MOON}\n"),
-        &format!("radius_m = {r2}\n"),
-        1,
-    );
-    let total = |text: &str| {
-        let cfg = optistim::config::parse(text, "dem.toml").unwrap_or_else(|e| panic!("{e}"));
-        let f = Renderer::new(0)
-            .unwrap()
-            .render(&cfg.scene, &cfg.pose, &cfg.settings)
-            .unwrap();
-        f.pl.iter().sum::<f64>()
-    };
+    let dem = SceneSpec {
+        body: &keys,
+        ..spec
+    }
+    .toml();
+    let big = reshaped(base.clone(), &format!("radius_m = {r2}\n"));
+    let total = |text: &str| image(text).iter().sum::<f64>();
     let (td, tb, ts) = (total(&dem), total(&big), total(&base));
     println!(
         "R + H sphere from a DEM: {:.2e} (R sphere {:.2e})",
@@ -276,11 +274,11 @@ fn a_displacing_dem_from_a_tiff_of_radii_is_the_bigger_sphere() {
     assert!((td / tb - 1.0).abs() < 1e-4, "{td} vs {tb}");
     assert!((ts / tb - 1.0).abs() > 0.1);
     // Displacement without a DEM is refused.
-    let bad = base.replacen(
-        "albedo_type = \"normal\"\n",
-        "albedo_type = \"normal\"\ndisplacement = true\n",
-        1,
-    );
+    let bad = SceneSpec {
+        body: "displacement = true",
+        ..spec
+    }
+    .toml();
     match optistim::config::parse(&bad, "s.toml") {
         Err(optistim::config::ConfigError::Invalid { key, .. }) => {
             assert_eq!(key, "body.displacement")
@@ -305,26 +303,22 @@ fn dem_heights_above_an_ellipsoid_keep_its_shape() {
     );
     let spec = oblique_view();
     let sphere = spec.toml();
-    let ell = sphere.replacen(&format!("radius_m = {R_MOON}\n"), &ellipsoid(), 1);
+    let ell = reshaped(sphere.clone(), &ellipsoid());
     let with_dem = |displacement: bool| {
-        ell.replacen(
-            "albedo_type = \"normal\"\n",
-            &format!(
-                "albedo_type = \"normal\"\ndem_map = {{ path = {:?} }}\ndisplacement = {displacement}\n",
-                tif.display().to_string()
-            ),
-            1,
+        let keys = format!(
+            "dem_map = {{ path = {:?} }}\ndisplacement = {displacement}",
+            tif.display().to_string()
+        );
+        reshaped(
+            SceneSpec {
+                body: &keys,
+                ..spec
+            }
+            .toml(),
+            &ellipsoid(),
         )
     };
-    let render = |text: &str| {
-        let cfg = optistim::config::parse(text, "ell.toml").unwrap_or_else(|e| panic!("{e}"));
-        Renderer::new(0)
-            .unwrap()
-            .render(&cfg.scene, &cfg.pose, &cfg.settings)
-            .unwrap()
-            .pl
-    };
-    let (pe, pd, ps) = (render(&ell), render(&with_dem(true)), render(&sphere));
+    let (pe, pd, ps) = (image(&ell), image(&with_dem(true)), image(&sphere));
     let sum = |v: &[f64]| v.iter().sum::<f64>();
     let (te, td, ts) = (sum(&pe), sum(&pd), sum(&ps));
     let rel = relative_differences(&pe, &pd);

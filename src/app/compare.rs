@@ -33,7 +33,7 @@ pub fn run(
         path: photo.display().to_string(),
         source,
     })?;
-    let (pw, ph, real_dn, _) = crate::io::decode_png_gray(photo, &bytes)?;
+    let (pw, ph, real_dn) = crate::io::decode_png_gray(photo, &bytes)?;
     let t0 = std::time::Instant::now();
     let mut renderer = Renderer::new(config.settings.threads)?;
     let frame = renderer.render(&config.scene, &config.pose, &config.settings)?;

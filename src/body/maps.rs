@@ -297,7 +297,7 @@ impl Map {
             } else if !(0.0..w).contains(&x) {
                 x = x.rem_euclid(w);
             }
-        } else if x < -0.5 || x > self.width as f64 - 0.5 {
+        } else if x < -0.5 || x > w - 0.5 {
             return None;
         }
         let y = (self.lat_top - lat) / self.dlat - 0.5;

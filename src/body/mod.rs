@@ -277,7 +277,7 @@ impl Relief {
     /// micrometre). `None` if it leaves that sphere without
     /// meeting the surface.
     pub fn intersect_displaced(&self, origin: DVec3, dir: DVec3) -> Option<f64> {
-        let ceiling = self.bounding_radius_m().max(self.radius_m);
+        let ceiling = self.bounding_radius_m();
         let b = origin.dot(dir);
         let disc = b * b - (origin.length_squared() - ceiling * ceiling);
         if disc < 0.0 {

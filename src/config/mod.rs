@@ -125,6 +125,16 @@ impl Validator<'_> {
             self.err(key, value, &format!("one of {}", allowed.join(", ")))
         }
     }
+    /// The value named `value` among `options` (name, value), or an error listing the names.
+    fn pick<T: Copy>(&self, key: &str, value: &str, options: &[(&str, T)]) -> R<T> {
+        match options.iter().find(|(name, _)| *name == value) {
+            Some(&(_, v)) => Ok(v),
+            None => {
+                let names: Vec<&str> = options.iter().map(|o| o.0).collect();
+                self.err(key, value, &format!("one of {}", names.join(", ")))
+            }
+        }
+    }
     fn need<T>(&self, key: &str, v: Option<T>, why: &str) -> R<T> {
         match v {
             Some(x) => Ok(x),
@@ -560,11 +570,11 @@ impl Validator<'_> {
                 })
             }
         };
-        let base = match &shape {
+        let ellipsoid = match &shape {
             Shape::Ellipsoid(e) => Some(*e),
             _ => None,
         };
-        let relief = self.relief(b, radius_m, base.as_ref())?;
+        let relief = self.relief(b, radius_m, ellipsoid.as_ref())?;
         Ok(Body {
             name: b.name.clone(),
             shape,
@@ -578,7 +588,7 @@ impl Validator<'_> {
     /// horizon map beside it and a normal map (alone, on a flat DEM of its grid, without one);
     /// each refused without what it needs.
     ///
-    /// On an ellipsoid (`base`), heights are above its surface along the direction from the
+    /// On an `ellipsoid`, heights are above its surface along the direction from the
     /// centre: they become radii once, at each texel's centre, so the relief displaces around
     /// `radius_m` (the longest semi-axis) as a DEM of radii would, and carries the ellipsoid's
     /// shape in its normals and bounding.
@@ -586,7 +596,7 @@ impl Validator<'_> {
         &self,
         b: &RawBody,
         radius_m: f64,
-        base: Option<&crate::body::Ellipsoid>,
+        ellipsoid: Option<&crate::body::Ellipsoid>,
     ) -> R<Option<crate::body::Relief>> {
         use crate::body::{NormalFrame, Relief};
         if b.dem_map.is_none() {
@@ -619,38 +629,39 @@ impl Validator<'_> {
             None => None,
             Some(m) => {
                 let dem = self.map("body.dem_map", m)?;
-                let heights = match self.choice(
+                let radii = self.pick(
                     "body.dem_values",
                     b.dem_values.as_deref().unwrap_or("height"),
-                    &["height", "radius"],
-                )? {
-                    "radius" => {
-                        let h = dem.values.iter().map(|&v| v as f64 - radius_m).collect();
+                    &[("height", false), ("radius", true)],
+                )?;
+                let heights = match (radii, ellipsoid) {
+                    (false, None) => dem,
+                    (false, Some(_)) if !b.displacement => {
+                        return self.err(
+                            "body.displacement",
+                            "false with DEM heights above an ellipsoid",
+                            "true (the heights are above the ellipsoid's surface, which only \
+                             the displaced DEM carries)",
+                        );
+                    }
+                    // Radii (from the centre) or heights above the ellipsoid's surface, at
+                    // each texel's centre: to heights above the sphere of `radius_m`.
+                    (radii, ellipsoid) => {
+                        let from_m = |i: usize| match ellipsoid.filter(|_| !radii) {
+                            Some(e) => {
+                                let (lon, lat) = dem.texel_centre(i % dem.width, i / dem.width);
+                                e.surface(crate::geometry::unit_from_lon_lat(lon, lat))
+                                    .0
+                                    .length()
+                            }
+                            None => 0.0,
+                        };
+                        let h = (0..dem.values.len())
+                            .map(|i| from_m(i) + dem.values[i] as f64 - radius_m)
+                            .collect();
                         dem.with_values(h)
                             .or_else(|e| self.unusable("body.dem_map", m, e))?
                     }
-                    _ => match base {
-                        None => dem,
-                        Some(_) if !b.displacement => {
-                            return self.err(
-                                "body.displacement",
-                                "false with DEM heights above an ellipsoid",
-                                "true (the heights are above the ellipsoid's surface, which only \
-                                 the displaced DEM carries)",
-                            );
-                        }
-                        Some(e) => {
-                            let h = (0..dem.values.len())
-                                .map(|i| {
-                                    let (lon, lat) = dem.texel_centre(i % dem.width, i / dem.width);
-                                    let up = crate::geometry::unit_from_lon_lat(lon, lat);
-                                    e.surface(up).0.length() + dem.values[i] as f64 - radius_m
-                                })
-                                .collect();
-                            dem.with_values(h)
-                                .or_else(|e| self.unusable("body.dem_map", m, e))?
-                        }
-                    },
                 };
                 let relief = Relief::new(heights, radius_m, b.displacement).or_else(|e| {
                     self.err(
@@ -668,14 +679,11 @@ impl Validator<'_> {
             }
         };
         if let Some(m) = &b.normal_map {
-            let frame = match self.choice(
+            let frame = self.pick(
                 "body.normal_frame",
                 b.normal_frame.as_deref().unwrap_or("local"),
-                &["local", "body"],
-            )? {
-                "body" => NormalFrame::Body,
-                _ => NormalFrame::Local,
-            };
+                &[("local", NormalFrame::Local), ("body", NormalFrame::Body)],
+            )?;
             let components = self.map_rgb("body.normal_map", m)?;
             let base = match relief {
                 Some(r) => r,
@@ -1010,33 +1018,22 @@ impl Validator<'_> {
             1e-3,
             1e3,
         )?;
-        if let Some(v) = &r.integration {
-            s.integration = match self.choice(
-                "render.integration",
-                v,
-                &["auto", "exact", "trapezoidal", "midpoint", "pointwise"],
-            )? {
-                "auto" => Integration::Auto {
-                    points_per_deg: ppd,
-                },
-                "exact" => {
-                    if let Err(e) = Method::resolve(Integration::Exact, body) {
-                        return self.err("render.integration", v, &e.to_string());
-                    }
-                    Integration::Exact
-                }
-                "trapezoidal" => Integration::Trapezoidal {
-                    points_per_deg: ppd,
-                },
-                "midpoint" => Integration::Midpoint {
-                    points_per_deg: ppd,
-                },
-                _ => Integration::Pointwise,
-            };
-        } else {
-            s.integration = Integration::Auto {
-                points_per_deg: ppd,
-            };
+        let points_per_deg = ppd;
+        s.integration = self.pick(
+            "render.integration",
+            r.integration.as_deref().unwrap_or("auto"),
+            &[
+                ("auto", Integration::Auto { points_per_deg }),
+                ("exact", Integration::Exact),
+                ("trapezoidal", Integration::Trapezoidal { points_per_deg }),
+                ("midpoint", Integration::Midpoint { points_per_deg }),
+                ("pointwise", Integration::Pointwise),
+            ],
+        )?;
+        if s.integration == Integration::Exact
+            && let Err(e) = Method::resolve(Integration::Exact, body)
+        {
+            return self.err("render.integration", "exact", &e.to_string());
         }
         if let Some(v) = &r.fov {
             s.fov = match self.choice("render.fov", v, &["frustum", "cone"])? {
@@ -1122,15 +1119,15 @@ impl Validator<'_> {
         }
         if let Some(v) = &r.self_shadowing {
             use crate::render::settings::SelfShadowing;
-            s.self_shadowing = match self.choice(
+            s.self_shadowing = self.pick(
                 "render.self_shadowing",
                 v,
-                &["off", "ray_marching", "horizon_map"],
-            )? {
-                "ray_marching" => SelfShadowing::RayMarching,
-                "horizon_map" => SelfShadowing::HorizonMap,
-                _ => SelfShadowing::Off,
-            };
+                &[
+                    ("off", SelfShadowing::Off),
+                    ("ray_marching", SelfShadowing::RayMarching),
+                    ("horizon_map", SelfShadowing::HorizonMap),
+                ],
+            )?;
             // Shadows asked for and impossible would silently be none.
             let relief = body.relief.as_ref();
             match s.self_shadowing {

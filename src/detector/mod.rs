@@ -140,17 +140,22 @@ impl Detector {
             });
     }
 
-    /// The DN of `e` collected electrons: full-well cap (Eq. 46), then the ADC with rounding to
-    /// the nearest integer (half up) and its bit-depth cap (Eq. 47), then the saved bits.
+    /// The DN of `e` collected electrons: the ADC's code ([`Detector::adc_code`]) at the saved
+    /// bits.
     #[inline]
     fn dn(&self, e: f64) -> u16 {
+        (self.adc_code(e) >> (self.bit_depth - self.saved_bits)) as u16
+    }
+
+    /// The ADC's code for `e` collected electrons: full-well cap (Eq. 46), then gain and offset
+    /// with rounding to the nearest integer (half up) and the bit-depth cap (Eq. 47).
+    #[inline]
+    fn adc_code(&self, e: f64) -> u32 {
         let max_dn = self.adc_max_dn();
         let e = e.clamp(0.0, self.full_well_e);
         // The value is clamped to >= 0 first, so `+ 0.5` and truncation round half up (libm's
         // `round` is not inlined).
-        let adc = ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn) + 0.5)
-            .min(max_dn) as u16;
-        adc >> (self.bit_depth - self.saved_bits)
+        ((self.offset_dn + self.adc_gain_dn_per_e * e).clamp(0.0, max_dn) + 0.5).min(max_dn) as u32
     }
 
     /// The DN distribution of a pixel that collects no electrons and sees readout noise alone
@@ -158,26 +163,20 @@ impl Detector {
     /// for [`DarkDn::draw`]. `None` when such a pixel's DN spreads over more than 64 values.
     fn dark_dn(&self) -> Option<DarkDn> {
         let sigma = self.noise.readout.map_or(0.0, |r| r.sigma_e);
-        let first = self.dn(0.0);
         let gain = self.adc_gain_dn_per_e;
-        if sigma <= 0.0 || gain <= 0.0 {
-            return Some(DarkDn {
-                below: vec![u64::MAX],
-                values: vec![first],
-            });
-        }
-        let max_dn = self.adc_max_dn();
-        let first_code = ((self.offset_dn.clamp(0.0, max_dn) + 0.5).min(max_dn)) as u32;
-        let last_code = ((self.offset_dn + gain * self.full_well_e).clamp(0.0, max_dn) + 0.5)
-            .min(max_dn) as u32;
+        let last = self.adc_code(self.full_well_e);
         let drop = self.bit_depth - self.saved_bits;
-        let (mut below, mut values) = (Vec::new(), Vec::new());
-        for code in first_code..=last_code {
-            // P(ADC code <= code): the electrons stay below the next code's edge.
-            let edge_e = (code as f64 + 0.5 - self.offset_dn) / gain;
-            let p = if code == last_code {
+        let mut dark = DarkDn {
+            below: Vec::new(),
+            values: Vec::new(),
+        };
+        let mut code = self.adc_code(0.0);
+        loop {
+            // P(code at most `code`): the electrons stay below the next code's edge.
+            let p = if code == last || sigma <= 0.0 || gain <= 0.0 {
                 1.0
             } else {
+                let edge_e = (code as f64 + 0.5 - self.offset_dn) / gain;
                 0.5 * libm::erfc(-edge_e / sigma / std::f64::consts::SQRT_2)
             };
             let b = if p >= 1.0 {
@@ -185,16 +184,16 @@ impl Detector {
             } else {
                 (p * 18_446_744_073_709_551_616.0) as u64
             };
-            below.push(b);
-            values.push((code >> drop) as u16);
+            dark.below.push(b);
+            dark.values.push((code >> drop) as u16);
             if b == u64::MAX {
-                return Some(DarkDn { below, values });
+                return Some(dark);
             }
-            if below.len() == 64 {
+            if dark.below.len() == 64 {
                 return None;
             }
+            code += 1;
         }
-        None
     }
 }
 

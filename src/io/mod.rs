@@ -35,37 +35,27 @@ pub fn write_png_gray(
     dn: &[u16],
     bit_depth: u32,
 ) -> Result<(), IoError> {
+    write_png(path, encode_png_gray(width, height, dn, bit_depth))
+}
+
+/// Writes an 8-bit RGB PNG (`rgb` holds 3 bytes per pixel).
+pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), IoError> {
+    let (color, depth) = (png::ColorType::Rgb, png::BitDepth::Eight);
+    write_png(path, encode_png(width, height, color, depth, rgb))
+}
+
+/// Writes an encoded PNG to `path`, naming it in either error.
+fn write_png(path: &Path, encoded: Result<Vec<u8>, png::EncodingError>) -> Result<(), IoError> {
     let p = path.display().to_string();
-    let bytes = encode_png_gray(width, height, dn, bit_depth).map_err(|source| IoError::Png {
+    let bytes = encoded.map_err(|source| IoError::Png {
         path: p.clone(),
         source,
     })?;
     std::fs::write(path, bytes).map_err(|source| IoError::File { path: p, source })
 }
 
-/// Writes an 8-bit RGB PNG (`rgb` holds 3 bytes per pixel).
-pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), IoError> {
-    let p = path.display().to_string();
-    let png_err = |source| IoError::Png {
-        path: p.clone(),
-        source,
-    };
-    let mut out = Vec::new();
-    let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut w = enc.write_header().map_err(png_err)?;
-    w.write_image_data(rgb).map_err(png_err)?;
-    w.finish().map_err(png_err)?;
-    std::fs::write(path, out).map_err(|source| IoError::File { path: p, source })
-}
-
-/// Decodes a one-channel grayscale PNG (8 or 16 bit) read from `path`: `(width, height, DN,
-/// bit depth)`.
-pub fn decode_png_gray(
-    path: &Path,
-    bytes: &[u8],
-) -> Result<(usize, usize, Vec<u16>, u32), IoError> {
+/// Decodes a one-channel grayscale PNG (8 or 16 bit) read from `path`: `(width, height, DN)`.
+pub fn decode_png_gray(path: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<u16>), IoError> {
     let p = path.display().to_string();
     let dec_err = |source| IoError::PngRead {
         path: p.clone(),
@@ -92,12 +82,7 @@ pub fn decode_png_gray(
             });
         }
     };
-    let bits = if info.bit_depth == png::BitDepth::Eight {
-        8
-    } else {
-        16
-    };
-    Ok((w, h, dn, bits))
+    Ok((w, h, dn))
 }
 
 /// A grayscale PNG in memory: 8-bit when `bit_depth <= 8`, else 16-bit holding the raw DN.
@@ -107,20 +92,32 @@ pub fn encode_png_gray(
     dn: &[u16],
     bit_depth: u32,
 ) -> Result<Vec<u8>, png::EncodingError> {
+    let gray = png::ColorType::Grayscale;
+    if bit_depth <= 8 {
+        let data: Vec<u8> = dn.iter().map(|&x| x.min(255) as u8).collect();
+        encode_png(width, height, gray, png::BitDepth::Eight, &data)
+    } else {
+        let data: Vec<u8> = dn.iter().flat_map(|&x| x.to_be_bytes()).collect();
+        encode_png(width, height, gray, png::BitDepth::Sixteen, &data)
+    }
+}
+
+/// A PNG in memory from its samples, packed as the colour type and depth say.
+fn encode_png(
+    width: usize,
+    height: usize,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    data: &[u8],
+) -> Result<Vec<u8>, png::EncodingError> {
     let mut out = Vec::new();
     let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
-    enc.set_color(png::ColorType::Grayscale);
+    enc.set_color(color);
+    enc.set_depth(depth);
     // Fast deflate: these images are written per frame; size matters less than time.
     enc.set_compression(png::Compression::Fast);
-    let data: Vec<u8> = if bit_depth <= 8 {
-        enc.set_depth(png::BitDepth::Eight);
-        dn.iter().map(|&x| x.min(255) as u8).collect()
-    } else {
-        enc.set_depth(png::BitDepth::Sixteen);
-        dn.iter().flat_map(|&x| x.to_be_bytes()).collect()
-    };
     let mut w = enc.write_header()?;
-    w.write_image_data(&data)?;
+    w.write_image_data(data)?;
     w.finish()?;
     Ok(out)
 }

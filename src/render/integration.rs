@@ -133,19 +133,32 @@ fn clipped(
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Method {
     Exact(ExactForm),
-    Trapezoidal { points_per_deg: f64 },
-    Midpoint { points_per_deg: f64 },
+    /// The trapezoidal or midpoint rule on a sub-grid of `points_per_deg` per degree.
+    SubGrid {
+        rule: Rule,
+        points_per_deg: f64,
+    },
     Pointwise,
 }
 
 /// The rule on a quadrangle's sub-grid.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Rule {
+pub enum Rule {
     /// Nodes on the cell corners, halved on the edges (at least 2 per side).
     Trapezoid,
     /// Nodes at the cell centres (at least 1 per side): same order, half the error constant
     /// for smooth integrands, and no node on an edge that the neighbour evaluates again.
     Midpoint,
+}
+
+impl Rule {
+    /// Nodes per side, at least, on an interior quadrangle.
+    fn min_points(self) -> usize {
+        match self {
+            Rule::Trapezoid => 2,
+            Rule::Midpoint => 1,
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -175,11 +188,20 @@ impl Method {
         Ok(match integration {
             Integration::Auto { points_per_deg } => match form {
                 Ok(f) => Method::Exact(f),
-                Err(_) => Method::Trapezoidal { points_per_deg },
+                Err(_) => Method::SubGrid {
+                    rule: Rule::Trapezoid,
+                    points_per_deg,
+                },
             },
             Integration::Exact => Method::Exact(form?),
-            Integration::Trapezoidal { points_per_deg } => Method::Trapezoidal { points_per_deg },
-            Integration::Midpoint { points_per_deg } => Method::Midpoint { points_per_deg },
+            Integration::Trapezoidal { points_per_deg } => Method::SubGrid {
+                rule: Rule::Trapezoid,
+                points_per_deg,
+            },
+            Integration::Midpoint { points_per_deg } => Method::SubGrid {
+                rule: Rule::Midpoint,
+                points_per_deg,
+            },
             Integration::Pointwise => Method::Pointwise,
         })
     }
@@ -414,9 +436,7 @@ pub fn integrate(
     };
     let px_cap = PixelCap::new(view, points_per_px);
     let boundary_ppd = match method {
-        Method::Trapezoidal { points_per_deg } | Method::Midpoint { points_per_deg } => {
-            points_per_deg
-        }
+        Method::SubGrid { points_per_deg, .. } => points_per_deg,
         _ => 5.0,
     };
     pl.clear();
@@ -467,15 +487,12 @@ pub fn integrate(
                                 ExactForm::Linear(kf) => kf * linear(g.c, &lon_m[i], &la),
                             }
                         }
-                        Method::Trapezoidal { points_per_deg } => {
-                            let rule = Rule::Trapezoid;
-                            let ppd = points_per_deg;
-                            sub_grid(view, brdf, trig, i, k, rule, ppd, &px_cap, 2, &mut samples)
-                        }
-                        Method::Midpoint { points_per_deg } => {
-                            let rule = Rule::Midpoint;
-                            let ppd = points_per_deg;
-                            sub_grid(view, brdf, trig, i, k, rule, ppd, &px_cap, 1, &mut samples)
+                        Method::SubGrid {
+                            rule,
+                            points_per_deg: ppd,
+                        } => {
+                            let n = rule.min_points();
+                            sub_grid(view, brdf, trig, i, k, rule, ppd, &px_cap, n, &mut samples)
                         }
                         Method::Pointwise => {
                             samples += 1;

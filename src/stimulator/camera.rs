@@ -155,17 +155,12 @@ impl SimulatedCamera {
         self.resampler.to_camera(&emitted, &mut feff_w_m2);
         let signal_e_per_s: Vec<f64> = feff_w_m2.iter().map(|f| f / self.k).collect();
         let size = (self.camera_px[0], self.camera_px[1]);
-        let mut dn = Vec::new();
-        match exposure_s {
-            Some(t) => {
-                let mut detector = self.detector.clone();
-                detector.exposure_s = t;
-                detector.expose(&signal_e_per_s, size, frame_id, &mut dn);
-            }
-            None => self
-                .detector
-                .expose(&signal_e_per_s, size, frame_id, &mut dn),
+        let mut detector = std::borrow::Cow::Borrowed(&self.detector);
+        if let Some(t) = exposure_s {
+            detector.to_mut().exposure_s = t;
         }
+        let mut dn = Vec::new();
+        detector.expose(&signal_e_per_s, size, frame_id, &mut dn);
         Ok(Capture {
             feff_w_m2,
             signal_e_per_s,

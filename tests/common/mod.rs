@@ -7,7 +7,9 @@ use optistim::render::Renderer;
 pub const AU: f64 = 1.495978707e11;
 pub const R_MOON: f64 = 1737400.0;
 
-/// A scene TOML with a sphere of `brdf` and the given camera; `render` is extra `[render]` text.
+/// A scene TOML with a sphere of `brdf` and the given camera; `body` and `render` are extra
+/// `[body]` and `[render]` text.
+#[derive(Clone, Copy)]
 pub struct SceneSpec<'a> {
     pub brdf: &'a str,
     pub albedo: f64,
@@ -18,6 +20,7 @@ pub struct SceneSpec<'a> {
     pub pixel_m: f64,
     pub focal_m: f64,
     pub distortion: &'a str,
+    pub body: &'a str,
     pub render: &'a str,
     pub noise: &'a str,
 }
@@ -34,6 +37,7 @@ impl Default for SceneSpec<'_> {
             pixel_m: 5.5e-6,
             focal_m: 0.03,
             distortion: "",
+            body: "",
             render: "",
             noise: "",
         }
@@ -60,6 +64,7 @@ radius_m = {R_MOON}
 brdf = "{brdf}"
 albedo = {albedo}
 albedo_type = "normal"
+{body}
 
 [camera]
 resolution_px = {res:?}
@@ -91,6 +96,7 @@ camera_position_m = {cam:?}
             pix = self.pixel_m,
             focal = self.focal_m,
             distortion = self.distortion,
+            body = self.body,
             noise = self.noise,
             cam = self.camera_m,
             pose = pose,

@@ -342,3 +342,100 @@ fn dem_heights_above_an_ellipsoid_keep_its_shape() {
         other => panic!("heights above an ellipsoid without displacement: {other:?}"),
     }
 }
+
+/// The ellipsoid seen from close range is bounded and sampled in its parameter space, where
+/// it is the unit sphere: the image matches an independent per-pixel ray cast (8 x 8 rays per
+/// pixel on the analytic ellipsoid, each weighted by its solid angle), and the grid is spent on
+/// what the camera sees. Two poses, 39 deg FOV: 1.3 semi-major axes from the centre, and 400 km
+/// above the short axis's pole, inside the sphere that bounds the body. (Sampled over every
+/// direction, as before the parameter space, the first pose kept 4 % of 410,000 quadrangles
+/// and missed the ray cast by 1.1e-4 in total, 4.3e-5 median and 1.0e-4 p95 per pixel.)
+#[test]
+fn an_ellipsoid_at_close_range_matches_ray_casting() {
+    for camera_m in [[2.6e6, 1.2e6, 1.0e6], [2e5, -1e5, 1.5e6]] {
+        let spec = SceneSpec {
+            brdf: "lommel_seeliger",
+            albedo: 0.2,
+            camera_m,
+            sun_m: [AU, 0.5 * AU, 0.3 * AU],
+            resolution: [256, 256],
+            focal_m: 0.002,
+            render: "points_per_pixel = 1.0",
+            ..Default::default()
+        };
+        let text = reshaped(spec.toml(), &ellipsoid());
+        let cfg = optistim::config::parse(&text, "shape.toml").unwrap_or_else(|e| panic!("{e}"));
+        let frame = Renderer::new(0)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &cfg.settings)
+            .unwrap();
+        let reference = ray_cast(&cfg, 8);
+        let (tr, tf) = (reference.iter().sum::<f64>(), frame.pl.iter().sum::<f64>());
+        let rel = relative_differences(&reference, &frame.pl);
+        let (median, p95) = (rel[rel.len() / 2], rel[rel.len() * 95 / 100]);
+        let s = &frame.stats;
+        let kept = s.points_kept as f64 / s.points_sampled as f64;
+        println!(
+            "camera at {camera_m:?}: against the ray cast total {:.2e}, pixels median \
+             {median:.2e} p95 {p95:.2e}; {} of {} quadrangles kept, {} surface samples",
+            tf / tr - 1.0,
+            s.points_kept,
+            s.points_sampled,
+            s.surface_samples
+        );
+        assert!((tf / tr - 1.0).abs() < 1e-5, "{tf} vs {tr}");
+        assert!(median < 2e-5 && p95 < 5e-5, "{median} {p95}");
+        assert!(kept > 0.3, "{kept}");
+    }
+    // Inside the sphere that bounds the ellipsoid is allowed, inside the ellipsoid is not.
+    let inside = SceneSpec {
+        camera_m: [0.0, 0.0, 1.0e6],
+        ..Default::default()
+    };
+    match optistim::config::parse(&reshaped(inside.toml(), &ellipsoid()), "shape.toml") {
+        Err(optistim::config::ConfigError::Invalid { key, .. }) => {
+            assert_eq!(key, "pose.camera_position_m")
+        }
+        other => panic!("{:?}", other.map(|_| ())),
+    }
+}
+
+/// `(P/L)` per pixel of an undistorted camera by ray casting the analytic ellipsoid, `n x n`
+/// rays per pixel: `A_sun A_cam sum f_r mu0 cos(eps) / d_sun^2 dOmega`, with the ray's solid
+/// angle `dOmega = cos^3(eps) / (f_u f_v n^2)` (Eq. 9 with `mu dA / d^2 = dOmega`).
+fn ray_cast(cfg: &optistim::config::Config, n: usize) -> Vec<f64> {
+    let intr = &cfg.scene.camera.intrinsics;
+    let (fu, fv) = intr.focal_px();
+    let (shape, brdf) = (&cfg.scene.body.shape, &cfg.scene.body.brdf);
+    let (cam, sun) = (cfg.pose.camera_position_m, cfg.pose.sun_position_m);
+    let k = cfg.scene.sun.area_m2() * intr.aperture_area_m2();
+    let axes = glam::DVec3::from(AXES);
+    let w = intr.width_px as usize;
+    let mut image = vec![0.0; w * intr.height_px as usize];
+    for (px, out) in image.iter_mut().enumerate() {
+        let (i, j) = ((px % w) as f64, (px / w) as f64);
+        for a in 0..n {
+            for b in 0..n {
+                let u = i + (a as f64 + 0.5) / n as f64;
+                let v = j + (b as f64 + 0.5) / n as f64;
+                let (x, y) = intr.unproject(u, v);
+                let ray = glam::DVec3::new(x, y, 1.0);
+                let cos_eps = 1.0 / ray.length();
+                let dir = cfg.pose.body_from_camera * ray.normalize();
+                let Some(t) = shape.intersect(cam, dir) else {
+                    continue;
+                };
+                let p = cam + dir * t;
+                let normal = (p / (axes * axes)).normalize();
+                let to_s = sun - p;
+                let g = optistim::brdf::Local::new(normal, to_s.normalize(), -dir);
+                if g.mu0 <= 0.0 || g.mu <= 0.0 {
+                    continue;
+                }
+                let d_omega = cos_eps.powi(3) / (fu * fv * (n * n) as f64);
+                *out += k * brdf.eval(&g) * g.mu0 * cos_eps / to_s.length_squared() * d_omega;
+            }
+        }
+    }
+    image
+}

@@ -99,6 +99,29 @@ pub struct Body {
     pub relief: Option<Relief>,
 }
 
+impl Body {
+    /// How far from the centre a camera in the unit direction `dir` (body frame) must stay
+    /// [m]: the radius of the sphere bounding the surface as rendered (a displacing relief
+    /// included), since the renderer bounds its grid to the visible cap of that sphere; for an
+    /// undisplaced ellipsoid, bounded in its parameter space, only its own radius along `dir`.
+    pub fn keep_out_radius_m(&self, dir: DVec3) -> f64 {
+        match (&self.shape, &self.relief) {
+            (_, Some(r)) if r.displaces() => {
+                r.bounding_radius_m().max(self.shape.bounding_radius_m())
+            }
+            (Shape::Ellipsoid(e), _) => e.surface(dir).0.length(),
+            (shape, _) => shape.bounding_radius_m(),
+        }
+    }
+
+    /// Whether a camera may stand at `p` [m, body frame]: outside the body and beyond
+    /// [`Body::keep_out_radius_m`].
+    pub fn admits_camera_at(&self, p: DVec3) -> bool {
+        let range = p.length();
+        !self.shape.contains(p) && range > self.keep_out_radius_m(p / range) * (1.0 + 1e-12)
+    }
+}
+
 /// The slopes of a DEM, as maps of `dh/d(east)` and `dh/d(north)` [m/m] on the DEM's grid,
 /// by central differences (wrapping in longitude); the normal at a point is
 /// `normalize(up - s_e east - s_n north)`, which is the average of the neighbouring facet

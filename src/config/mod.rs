@@ -906,16 +906,12 @@ impl Validator<'_> {
 
     fn pose(&self, p: &RawPose, sun_position_m: DVec3, body: &Body) -> R<Pose> {
         let camera_position_m = self.finite3("pose.camera_position_m", p.camera_position_m)?;
-        if body.shape.contains(camera_position_m)
-            || camera_position_m.length() <= body.shape.bounding_radius_m()
-        {
+        if !body.admits_camera_at(camera_position_m) {
+            let r = body.keep_out_radius_m(camera_position_m.normalize_or_zero());
             return self.err(
                 "pose.camera_position_m",
                 p.camera_position_m,
-                &format!(
-                    "a point outside the body (radius {} m)",
-                    body.shape.bounding_radius_m()
-                ),
+                &format!("a point outside the body (radius {r} m in that direction)"),
             );
         }
         let body_from_camera = match (p.attitude_wxyz, p.look_at_body) {

@@ -9,6 +9,9 @@
 //! more densely each iteration until the limits move less than the tolerance. When neither
 //! yields a point the body is wholly outside the FOV (the condition of Eq. 19) and the frame is
 //! black. The result is intersected with the lit longitudes and padded by a margin.
+//!
+//! All of it happens in the grid's space ([`super::view::Grid`]): the CSF for a sphere, the
+//! parameter space for an ellipsoid, where the ellipsoid is the unit sphere.
 
 use super::view::View;
 use crate::geometry::{lon_lat, wrap_pi};
@@ -31,12 +34,13 @@ impl Bounds {
 
 /// Limits of the region the camera can see, or `None` for a black frame.
 pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
-    let r = view.bounding_radius_m();
-    let d = view.cam_csf.length();
-    let c_hat = view.cam_csf / d;
-    let alpha = view.csf.phase_rad;
+    let g = &view.grid;
+    let r = g.radius;
+    let d = g.cam.length();
+    let c_hat = g.cam / d;
+    let alpha = g.phase_rad;
     let beta = (r / d).clamp(-1.0, 1.0).acos(); // visible cap half-angle
-    let beta_sun = (r / view.sun_csf.length()).clamp(-1.0, 1.0).acos(); // lit cap half-angle
+    let beta_sun = (r / g.sun.length()).clamp(-1.0, 1.0).acos(); // lit cap half-angle
     let (e1, e2) = (DVec3::Z, c_hat.cross(DVec3::Z).normalize());
     let csf_from_camera = view.camera_from_csf.transpose();
     let (w, h) = (
@@ -58,9 +62,9 @@ pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
                 (0.0, (1.0 - t) * h),
             ] {
                 let (x, y) = view.intrinsics.unproject(u, v);
-                let dir = (csf_from_camera * DVec3::new(x, y, 1.0)).normalize();
-                if let Some(t) = crate::geometry::ray_sphere(view.cam_csf, dir, r) {
-                    acc.push(view.cam_csf + dir * t);
+                let (o, dir) = view.grid_ray((csf_from_camera * DVec3::new(x, y, 1.0)).normalize());
+                if let Some(t) = crate::geometry::ray_sphere(o, dir, r) {
+                    acc.push(o + dir * t);
                 }
             }
         }
@@ -68,7 +72,7 @@ pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
         for k in 0..4 * n {
             let tau = std::f64::consts::TAU * k as f64 / (4 * n) as f64;
             let p = r * (beta.cos() * c_hat + beta.sin() * (tau.cos() * e1 + tau.sin() * e2));
-            if view.in_fov(view.to_camera(p)) {
+            if view.in_fov(view.to_camera(view.csf_from_grid(p))) {
                 acc.push(p);
             }
         }

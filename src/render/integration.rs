@@ -399,8 +399,7 @@ impl PixelCap {
         if self.scale.is_infinite() {
             return f64::INFINITY;
         }
-        let p = dir * view.shape.bounding_radius_m();
-        self.scale / (view.cam_csf - p).length()
+        self.scale / (view.cam_csf - view.rough_point(dir)).length()
     }
 }
 
@@ -458,7 +457,7 @@ pub fn integrate(
                 let local;
                 let brdf = match albedo {
                     Some(a) => {
-                        let n_body = view.csf.body_from_csf * trig.mid_dir(i, k);
+                        let n_body = view.body_dir(trig.mid_dir(i, k));
                         local = brdf.with_scale(a.scale_at(n_body, brdf.scale()));
                         &local
                     }

@@ -183,10 +183,13 @@ fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
     if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
         return bad("attitude", format!("{q:?} (must be a unit quaternion)"));
     }
-    let radius_m = scene.body.shape.bounding_radius_m();
-    let range_m = pose.camera_position_m.length();
-    if scene.body.shape.contains(pose.camera_position_m) || range_m <= radius_m * (1.0 + 1e-12) {
-        return Err(RenderError::CameraInsideBody { range_m, radius_m });
+    if !scene.body.admits_camera_at(pose.camera_position_m) {
+        return Err(RenderError::CameraInsideBody {
+            range_m: pose.camera_position_m.length(),
+            radius_m: scene
+                .body
+                .keep_out_radius_m(pose.camera_position_m.normalize_or_zero()),
+        });
     }
     if scene.body.shape.contains(pose.sun_position_m) {
         return bad("sun_position_m", "inside the body".into());
@@ -293,10 +296,11 @@ fn render_in_pool(
     let mut t = StageTimings::default();
 
     let t0 = Instant::now();
-    // A non-spherical shape is sampled over every direction from its centre, uniformly (the
+    // A sphere, and an ellipsoid in its parameter space, are bounded to the visible cap in the
+    // FOV; another shape is sampled over every direction from its centre, uniformly (the
     // visible-cap bounds and the projected-uniform spacing are the sphere's); pruning keeps
     // what is lit, visible and in the FOV.
-    let round = scene.body.shape.is_round();
+    let round = view.sphere_like();
     let bounds = if round {
         bounding::bound(&view, settings.bounding_tolerance_rad)
     } else {
@@ -313,7 +317,7 @@ fn render_in_pool(
     if let Some(bounds) = bounds {
         let t0 = Instant::now();
         let plan = sampling::plan(&view, &bounds, settings)?;
-        let alpha = view.csf.phase_rad;
+        let alpha = view.grid.phase_rad;
         let trig = GridTrig::new(
             sampling::edges(bounds.lon.0, bounds.lon.1, plan.n_lon, grid_sampling, alpha),
             sampling::edges(bounds.lat.0, bounds.lat.1, plan.n_lat, grid_sampling, 0.0),

@@ -119,7 +119,7 @@ const PILOT: usize = 32;
 /// pixels (projected area of the kept pilot quadrangles), the fraction kept and the mean
 /// image size of a quadrangle along longitude and along latitude.
 pub fn plan(view: &View, bounds: &Bounds, settings: &Settings) -> Result<Plan, TooManyPoints> {
-    let alpha = view.csf.phase_rad;
+    let alpha = view.grid.phase_rad;
     let pilot = GridTrig::new(
         edges(bounds.lon.0, bounds.lon.1, PILOT, settings.sampling, alpha),
         edges(bounds.lat.0, bounds.lat.1, PILOT, settings.sampling, 0.0),

@@ -1,5 +1,6 @@
 //! One frame's geometry, derived once from the pose: the CSF (Sec. 4.1), the camera and Sun
-//! positions in it, and `camera_from_csf`. Every later step works in CSF.
+//! positions in it, and `camera_from_csf`. Every later step works in CSF, over the grid's
+//! directions ([`Grid`]).
 
 use super::settings::{FovShape, SelfShadowing};
 use crate::body::{Relief, Shape};
@@ -24,6 +25,8 @@ pub struct View<'a> {
     pub cam_csf: DVec3,
     /// Sun position in CSF [m].
     pub sun_csf: DVec3,
+    /// The space the longitude-latitude grid is laid in.
+    pub grid: Grid,
     /// Super-sampling factor: pixel coordinates are on a grid this many times finer.
     pub m: f64,
     pub fov: FovShape,
@@ -31,6 +34,43 @@ pub struct View<'a> {
     pub cone_cos: f64,
     /// A point is in the frustum when its pixel lies within the frame grown by this [fine px].
     pub margin_px: f64,
+}
+
+/// The space the longitude-latitude grid is laid in, and what a grid direction means.
+///
+/// For a sphere, displaced or not, the grid is the CSF itself and a direction is the surface
+/// point's direction from the centre. An undisplaced triaxial ellipsoid `P = A u` (`A` the
+/// diagonal of its semi-axes, `u` on the unit sphere) is laid out in its *parameter space*
+/// `x' = A^-1 x`, where it is the unit sphere: there, with the CSF built from `C' = A^-1 C` and
+/// `S' = A^-1 S`, the grid direction is `u` itself. Visibility and lighting are the unit
+/// sphere's exactly, since `n . (C - P) = u . (C' - u) / |A^-1 u|` with
+/// `n = A^-1 u / |A^-1 u|` (and the same for the Sun), so the sphere's bounding (Eqs. 13-19)
+/// and projected-uniform sampling serve the ellipsoid at any range. The affine map is
+/// `csf_from_grid = csf_from_body A body_from_grid`; the normal over `u` is
+/// `normalize(csf_from_grid^-T u)` and the area per unit solid angle of `u` is
+/// `det A |A^-1 u|` (from `(A x) x (A y) = det A A^-T (x x y)`).
+#[derive(Clone, Copy, Debug)]
+pub struct Grid {
+    /// Camera and Sun positions in the grid's CSF [m, or semi-axes in parameter space].
+    pub cam: DVec3,
+    pub sun: DVec3,
+    /// Phase angle in the grid's CSF [rad] (the pose's own in [`View::csf`]).
+    pub phase_rad: f64,
+    /// Radius of the sphere bounding the surface in the grid's space (1 in parameter space).
+    pub radius: f64,
+    affine: Option<Affine>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Affine {
+    csf_from_grid: DMat3,
+    grid_from_csf: DMat3,
+    /// `csf_from_grid^-T`: takes `u` to the (unnormalised) normal.
+    normal_from_grid: DMat3,
+    /// `body_from_csf csf_from_grid`: takes `u` to the body-frame point.
+    body_from_grid: DMat3,
+    /// `det A / R^2` [m]: times `|A^-1 u|` [1/m], the area factor relative to `R^2`.
+    det_over_r2: f64,
 }
 
 /// The surface at one point, as the integrand needs it: see [`View::surface_point`].
@@ -60,6 +100,44 @@ impl<'a> View<'a> {
         let csf = CsfFrame::new(pose.sun_position_m, pose.camera_position_m, image_up_body);
         let csf_from_body = csf.csf_from_body();
         let half = intrinsics.circumscribed_half_angle();
+        let cam_csf = csf_from_body * pose.camera_position_m;
+        let sun_csf = csf_from_body * pose.sun_position_m;
+        let displaced = relief.is_some_and(|r| r.displaces());
+        let grid = match shape {
+            Shape::Ellipsoid(e) if !displaced => {
+                let a = DMat3::from_diagonal(e.semi_axes_m);
+                let a_inv = DMat3::from_diagonal(DVec3::ONE / e.semi_axes_m);
+                let (sun_p, cam_p) = (a_inv * pose.sun_position_m, a_inv * pose.camera_position_m);
+                let par = CsfFrame::new(sun_p, cam_p, a_inv * image_up_body);
+                let csf_from_grid = csf_from_body * a * par.body_from_csf;
+                let r = e.max_axis_m();
+                Grid {
+                    cam: par.csf_from_body() * cam_p,
+                    sun: par.csf_from_body() * sun_p,
+                    phase_rad: par.phase_rad,
+                    radius: 1.0,
+                    affine: Some(Affine {
+                        csf_from_grid,
+                        grid_from_csf: csf_from_grid.inverse(),
+                        normal_from_grid: csf_from_body * a_inv * par.body_from_csf,
+                        body_from_grid: a * par.body_from_csf,
+                        det_over_r2: a.determinant() / (r * r),
+                    }),
+                }
+            }
+            _ => Grid {
+                cam: cam_csf,
+                sun: sun_csf,
+                phase_rad: csf.phase_rad,
+                radius: match relief {
+                    Some(r) if r.displaces() => {
+                        r.bounding_radius_m().max(shape.bounding_radius_m())
+                    }
+                    _ => shape.bounding_radius_m(),
+                },
+                affine: None,
+            },
+        };
         View {
             intrinsics,
             shape,
@@ -72,8 +150,9 @@ impl<'a> View<'a> {
             csf_from_body,
             csf,
             camera_from_csf: camera_from_body * csf.body_from_csf,
-            cam_csf: csf_from_body * pose.camera_position_m,
-            sun_csf: csf_from_body * pose.sun_position_m,
+            cam_csf,
+            sun_csf,
+            grid,
             m: m as f64,
             fov,
             cone_cos: (half + 1e-3).min(std::f64::consts::PI).cos(),
@@ -97,7 +176,7 @@ impl<'a> View<'a> {
             };
         };
         let horizon = self.shadows == SelfShadowing::HorizonMap;
-        let at = r.at(self.csf.body_from_csf * dir, horizon);
+        let at = r.at(self.body_dir(dir), horizon);
         let normal = self.csf_from_body * at.normal;
         // The geometric normal is the DEM's where it displaces the surface, the shape's else.
         let (p, n_geo) = if r.displaces() {
@@ -125,7 +204,7 @@ impl<'a> View<'a> {
         match self.shadows {
             SelfShadowing::Off => {}
             SelfShadowing::RayMarching => {
-                let up = self.csf.body_from_csf * dir;
+                let up = self.body_dir(dir);
                 let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
                 if g.mu0 > 0.0 && r.occluded(up, to(self.sun_csf)) {
                     g.mu0 = 0.0;
@@ -151,11 +230,18 @@ impl<'a> View<'a> {
         }
     }
 
-    /// Surface point [m] and outward unit normal (CSF) over the CSF unit direction `dir`: a
-    /// round shape is asked directly, another one in the body frame; a displacing DEM moves
-    /// the point to `R + h` and turns the normal to its own.
+    /// Surface point [m] and outward unit normal (CSF) over the grid's unit direction `dir`
+    /// ([`Grid`]): a round shape is asked directly, an ellipsoid through its parameter space,
+    /// another shape in the body frame; a displacing DEM moves the point to `R + h` and turns
+    /// the normal to its own.
     #[inline(always)]
     pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
+        if let Some(a) = &self.grid.affine {
+            return (
+                a.csf_from_grid * dir,
+                (a.normal_from_grid * dir).normalize(),
+            );
+        }
         if let Some(r) = self.relief.filter(|r| r.displaces()) {
             let at = r.at(self.csf.body_from_csf * dir, false);
             let p = dir * (r.reference_radius_m() + at.height_m);
@@ -168,16 +254,65 @@ impl<'a> View<'a> {
         (self.csf_from_body * p, self.csf_from_body * n)
     }
 
-    /// The surface area per unit solid angle at the point `p` with (geometric) normal `n` over
-    /// the unit direction `dir`, relative to the shape's bounding `R^2`:
-    /// `(|p|/R)^2 / (n . dir)` (1 on an undisplaced sphere).
+    /// The body-frame unit direction from the centre to the surface point over the grid's
+    /// direction `dir`: where maps are looked up.
+    #[inline(always)]
+    pub fn body_dir(&self, dir: DVec3) -> DVec3 {
+        match &self.grid.affine {
+            Some(a) => (a.body_from_grid * dir).normalize(),
+            None => self.csf.body_from_csf * dir,
+        }
+    }
+
+    /// The surface area per unit solid angle of the grid's directions at the point `p` with
+    /// (geometric) normal `n` over the grid's unit direction `dir`, relative to the shape's
+    /// bounding `R^2`: `(|p|/R)^2 / (n . dir)` (1 on an undisplaced sphere), and
+    /// `det A |A^-1 u| / R^2` on an ellipsoid's parameter sphere ([`Grid`]).
     #[inline(always)]
     pub fn area_factor(&self, dir: DVec3, p: DVec3, n: DVec3) -> f64 {
+        if let Some(a) = &self.grid.affine {
+            return a.det_over_r2 * (a.normal_from_grid * dir).length();
+        }
         if self.shape.is_round() && !self.displaced() {
             return 1.0;
         }
         let r = self.shape.bounding_radius_m();
         p.length_squared() / (r * r) / n.dot(dir).max(1e-9)
+    }
+
+    /// Whether the grid's space is a sphere's ([`Grid`]): then the visible-cap bounds and the
+    /// projected-uniform spacing apply; else the grid covers every direction, uniformly.
+    pub fn sphere_like(&self) -> bool {
+        self.shape.is_round() || self.grid.affine.is_some()
+    }
+
+    /// A point [m] (CSF) of the surface over the grid's direction `dir`, for range estimates:
+    /// the point itself on an ellipsoid, else on the shape's bounding sphere.
+    #[inline(always)]
+    pub fn rough_point(&self, dir: DVec3) -> DVec3 {
+        match &self.grid.affine {
+            Some(a) => a.csf_from_grid * dir,
+            None => dir * self.shape.bounding_radius_m(),
+        }
+    }
+
+    /// The CSF point [m] of a point of the grid's space.
+    #[inline(always)]
+    pub fn csf_from_grid(&self, p: DVec3) -> DVec3 {
+        match &self.grid.affine {
+            Some(a) => a.csf_from_grid * p,
+            None => p,
+        }
+    }
+
+    /// The camera's line of sight along the CSF unit direction `dir_csf` in the grid's space:
+    /// origin and unit direction.
+    #[inline(always)]
+    pub fn grid_ray(&self, dir_csf: DVec3) -> (DVec3, DVec3) {
+        match &self.grid.affine {
+            Some(a) => (self.grid.cam, (a.grid_from_csf * dir_csf).normalize()),
+            None => (self.cam_csf, dir_csf),
+        }
     }
 
     /// Whether a DEM displaces the surface.
@@ -186,16 +321,17 @@ impl<'a> View<'a> {
         self.relief.is_some_and(|r| r.displaces())
     }
 
-    /// The radius of a sphere containing the surface as rendered (relief included) [m].
-    pub fn bounding_radius_m(&self) -> f64 {
-        match self.relief {
-            Some(r) if r.displaces() => r.bounding_radius_m().max(self.shape.bounding_radius_m()),
-            _ => self.shape.bounding_radius_m(),
-        }
-    }
-
-    /// The exactly known lit and visible region, where there is one (an undisplaced sphere).
+    /// The exactly known lit and visible region in the grid's longitude and latitude, where
+    /// there is one: an undisplaced sphere's, and an ellipsoid's, which is its parameter
+    /// sphere's ([`Grid`]).
     pub fn lit_visible(&self) -> Option<crate::body::LitVisible> {
+        if self.grid.affine.is_some() {
+            return Some(crate::body::LitVisible::new(
+                1.0,
+                self.grid.sun,
+                self.grid.cam,
+            ));
+        }
         if self.displaced() {
             return None;
         }

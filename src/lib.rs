@@ -10,7 +10,7 @@
 //! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates, ray-sphere |
 //! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45) |
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
-//! | [`body`] | the body's shape (sphere, triaxial ellipsoid; meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps |
+//! | [`body`] | the body's shape (sphere, triaxial ellipsoid; meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps, horizons computed from the DEM by azimuth |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
 //! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure |
 //! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47) |

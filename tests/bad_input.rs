@@ -105,6 +105,12 @@ fn out_of_range_values_name_file_key_value_and_allowed() {
         &["dem_map"],
     );
     invalid(
+        "albedo = 0.12",
+        "albedo = 0.12\nhorizon_azimuths = 16",
+        "body.horizon_azimuths",
+        &["dem_map"],
+    );
+    invalid(
         "[render]",
         "[render]\nself_shadowing = \"always\"",
         "render.self_shadowing",

@@ -393,6 +393,16 @@ enum Pole {
     South,
 }
 
+impl Taps {
+    /// The four texels (flat indices) and their weights (without a pole's share).
+    pub fn texels(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.texel
+            .iter()
+            .zip(&self.weight)
+            .map(|(&t, &w)| (t as usize, w))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

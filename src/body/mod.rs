@@ -7,6 +7,7 @@
 //! only the sphere has an exact lit-and-visible region and closed-form integrals.
 
 pub mod ellipsoid;
+pub mod horizon;
 pub mod maps;
 pub mod sphere;
 
@@ -143,6 +144,8 @@ pub struct Relief {
     pub horizon_sin: Option<std::sync::Arc<maps::Map>>,
     horizon_sin_max: f64,
     horizon_on_dem_grid: bool,
+    /// The horizon computed from the DEM itself in azimuth bins, filled as frames ask.
+    pub dem_horizon: Option<std::sync::Arc<horizon::DemHorizon>>,
     /// Whether the heights displace the surface (`r = R + h`).
     displaces: bool,
     /// A normal map, which replaces the normals of the slopes where it has a value.
@@ -229,6 +232,7 @@ impl Relief {
             horizon_sin: None,
             horizon_sin_max: -1.0,
             horizon_on_dem_grid: false,
+            dem_horizon: None,
             displaces,
             normal_map: None,
         })
@@ -251,6 +255,46 @@ impl Relief {
             horizon_sin: Some(std::sync::Arc::new(horizon_sin)),
             ..self
         })
+    }
+
+    /// The same relief with its horizon computed from the DEM in `azimuths` bins
+    /// ([`horizon::DemHorizon`]), instead of a horizon map.
+    pub fn with_dem_horizon(self, azimuths: usize) -> Relief {
+        let h = horizon::DemHorizon::new(&self.heights_m, self.radius_m, azimuths);
+        Relief {
+            dem_horizon: Some(std::sync::Arc::new(h)),
+            ..self
+        }
+    }
+
+    /// Whether there is a horizon to look up (a map, or the DEM's own by azimuth).
+    pub fn has_horizon(&self) -> bool {
+        self.horizon_sin.is_some() || self.dem_horizon.is_some()
+    }
+
+    /// Whether the DEM's own horizon hides direction `toward` (unit, body frame) from the
+    /// surface point over the unit direction `up`: it rises less than the horizon in its
+    /// azimuth ([`horizon::DemHorizon`]). Like ray marching, a direction below the horizontal
+    /// is left to the BRDF's cosines, and one rising more steeply than the steepest slope (here
+    /// the steepest within reach) cannot be hidden; false without a DEM horizon.
+    pub fn horizon_hides(&self, up: DVec3, toward: DVec3) -> bool {
+        let Some(dh) = &self.dem_horizon else {
+            return false;
+        };
+        let rise = toward.dot(up);
+        if rise <= 0.0 {
+            return false;
+        }
+        let (lon, lat) = crate::geometry::lon_lat(up);
+        let Some(taps) = self.heights_m.taps(lon, lat) else {
+            return false;
+        };
+        if !dh.may_hide(&taps, rise) {
+            return false;
+        }
+        let (east, north) = crate::geometry::east_north(up);
+        let azimuth = toward.dot(north).atan2(toward.dot(east));
+        rise < dh.sin_at(&self.heights_m, &taps, azimuth)
     }
 
     /// The sine of the highest horizon in the map: directions rising more steeply than that
@@ -370,13 +414,7 @@ impl Relief {
         } else {
             0.0
         };
-        let e = DVec3::Z.cross(up);
-        let east = if e.length_squared() > 1e-24 {
-            e.normalize()
-        } else {
-            DVec3::Y
-        };
-        let north = up.cross(east);
+        let (east, north) = crate::geometry::east_north(up);
         let mut normal = (up - se * east - sn * north).normalize();
         if let Some(nm) = &self.normal_map {
             let local_taps;
@@ -515,17 +553,17 @@ mod tests {
         );
     }
 
-    #[test]
-    fn a_wall_casts_the_shadow_length_of_its_height_over_the_sun_elevation() {
+    /// A 1000 m wall running north-south at longitude 0-0.05 deg on a flat 4 x 4 deg DEM
+    /// (400 x 400), and its cell [m].
+    fn wall() -> (Relief, f64) {
         let radius = 1_737_400.0;
         let (n, span_deg) = (400usize, 4.0);
         let cell_deg = span_deg / n as f64;
-        let wall_m = 1000.0;
         let values = (0..n * n)
             .map(|i| {
                 let lon = -2.0 + ((i % n) as f64 + 0.5) * cell_deg;
                 if (0.0..0.05).contains(&lon) {
-                    wall_m
+                    WALL_M
                 } else {
                     0.0
                 }
@@ -538,25 +576,52 @@ mod tests {
         };
         let dem = Map::from_values(std::path::Path::new("wall"), n, n, values, &enc).unwrap();
         let relief = Relief::new(dem, radius, false).unwrap();
+        (relief, radius * cell_deg.to_radians())
+    }
+
+    const WALL_M: f64 = 1000.0;
+
+    /// Walks west from the wall's foot with the Sun 10 deg above the eastern horizon; the
+    /// shadow's end is the last point `hidden` says the Sun is hidden from, against
+    /// `height / tan(elevation)`.
+    fn shadow_end(hidden: impl Fn(DVec3, DVec3) -> bool, cell_m: f64) {
+        let radius = 1_737_400.0;
         let elevation = 10f64.to_radians();
-        let cell_m = radius * cell_deg.to_radians();
-        // Walk west from the wall's foot; the shadow's end is the last shadowed point.
         let mut end_m = 0.0;
         for k in 1..200 {
             let x_m = k as f64 * cell_m / 4.0;
-            let lon = -x_m / radius;
-            let up = crate::geometry::unit_from_lon_lat(lon, 0.0);
+            let up = crate::geometry::unit_from_lon_lat(-x_m / radius, 0.0);
             let east = DVec3::Z.cross(up).normalize();
             let sun = east * elevation.cos() + up * elevation.sin();
-            if relief.occluded(up, sun) {
+            if hidden(up, sun) {
                 end_m = x_m;
             }
         }
-        let want = wall_m / elevation.tan();
+        let want = WALL_M / elevation.tan();
         eprintln!("shadow length {end_m:.0} m, analytic {want:.0} m, cell {cell_m:.0} m");
         assert!((end_m - want).abs() <= cell_m, "{end_m} vs {want}");
+    }
+
+    #[test]
+    fn a_wall_casts_the_shadow_length_of_its_height_over_the_sun_elevation() {
+        let (relief, cell_m) = wall();
+        shadow_end(|up, sun| relief.occluded(up, sun), cell_m);
         // Sun higher than the steepest slope: nothing is marched, nothing is shadowed.
         let up = crate::geometry::unit_from_lon_lat(-0.001, 0.0);
         assert!(!relief.occluded(up, up));
+    }
+
+    /// The DEM's own horizon (16 azimuths) casts the same shadow, within one cell; the Sun
+    /// from the west of the wall, the wall at its back, is not hidden.
+    #[test]
+    fn the_dem_horizon_casts_the_wall_shadow_and_knows_the_sun_azimuth() {
+        let (relief, cell_m) = wall();
+        let relief = relief.with_dem_horizon(16);
+        shadow_end(|up, sun| relief.horizon_hides(up, sun), cell_m);
+        let up = crate::geometry::unit_from_lon_lat(-0.002, 0.0);
+        let east = DVec3::Z.cross(up).normalize();
+        let elevation = 3f64.to_radians();
+        assert!(relief.horizon_hides(up, east * elevation.cos() + up * elevation.sin()));
+        assert!(!relief.horizon_hides(up, -east * elevation.cos() + up * elevation.sin()));
     }
 }

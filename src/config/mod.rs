@@ -612,6 +612,11 @@ impl Validator<'_> {
                     "body.horizon_map",
                     "a horizon map beside the DEM it was computed from",
                 ),
+                (
+                    b.horizon_azimuths.is_some(),
+                    "body.horizon_azimuths",
+                    "a DEM to compute the horizon from",
+                ),
             ] {
                 if given {
                     return self.err(key, "without body.dem_map", needs);
@@ -670,9 +675,20 @@ impl Validator<'_> {
                         &format!("a usable DEM ({e})"),
                     )
                 })?;
-                Some(match &b.horizon_map {
-                    None => relief,
-                    Some(h) => relief
+                Some(match (&b.horizon_map, b.horizon_azimuths) {
+                    (None, None) => relief,
+                    (Some(_), Some(n)) => {
+                        return self.err(
+                            "body.horizon_azimuths",
+                            n,
+                            "absent with a body.horizon_map (one horizon or the other)",
+                        );
+                    }
+                    (None, Some(n)) if !(4..=256).contains(&n) => {
+                        return self.err("body.horizon_azimuths", n, "4 to 256");
+                    }
+                    (None, Some(n)) => relief.with_dem_horizon(n as usize),
+                    (Some(h), None) => relief
                         .with_horizon(self.map("body.horizon_map", h)?)
                         .or_else(|e| self.unusable("body.horizon_map", h, e))?,
                 })
@@ -1130,11 +1146,11 @@ impl Validator<'_> {
                 SelfShadowing::RayMarching if relief.is_none() => {
                     return self.err("render.self_shadowing", v, "off without a body.dem_map");
                 }
-                SelfShadowing::HorizonMap if relief.is_none_or(|r| r.horizon_sin.is_none()) => {
+                SelfShadowing::HorizonMap if relief.is_none_or(|r| !r.has_horizon()) => {
                     return self.err(
                         "render.self_shadowing",
                         v,
-                        "off or ray_marching without a body.horizon_map",
+                        "off or ray_marching without a body.horizon_map or body.horizon_azimuths",
                     );
                 }
                 _ => {}

@@ -59,6 +59,9 @@ pub struct RawBody {
     pub dem_map: Option<RawMap>,
     /// Elevation angle of the local horizon [rad] per texel (needs `dem_map`).
     pub horizon_map: Option<RawMap>,
+    /// The horizon computed from `dem_map` itself in this many azimuths, instead of a
+    /// `horizon_map`.
+    pub horizon_azimuths: Option<u32>,
     /// What the DEM's values are: `height` above `radius_m` (default) or `radius` from the
     /// centre (a Vesta-like shape model).
     pub dem_values: Option<String>,

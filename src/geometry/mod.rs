@@ -48,6 +48,19 @@ pub fn unit_from_lon_lat(lon: f64, lat: f64) -> DVec3 {
     DVec3::new(cl * co, cl * so, sl)
 }
 
+/// The local east and north unit vectors at the unit direction `up` (the paper's frame O);
+/// at a pole, east is +Y.
+#[inline]
+pub fn east_north(up: DVec3) -> (DVec3, DVec3) {
+    let e = DVec3::Z.cross(up);
+    let east = if e.length_squared() > 1e-24 {
+        e.normalize()
+    } else {
+        DVec3::Y
+    };
+    (east, up.cross(east))
+}
+
 /// `(lon, lat)` of a non-zero vector, lon in (-pi, pi].
 #[inline]
 pub fn lon_lat(v: DVec3) -> (f64, f64) {

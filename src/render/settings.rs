@@ -69,9 +69,10 @@ pub enum SelfShadowing {
     /// Rays marched over the DEM towards the Sun and the camera (Eq. 33), from the points
     /// where the terrain could block them: exact to the DEM, about a microsecond a point.
     RayMarching,
-    /// The body's horizon map: the direction is blocked when it rises less than the local
-    /// horizon's elevation angle. One lookup a point; the map's horizon is the same in every
-    /// azimuth, so it is an approximation (see `docs/scene.md`).
+    /// The body's horizon: the direction is blocked when it rises less than the local
+    /// horizon's elevation angle. One lookup a point. From a horizon map, the same in every
+    /// azimuth (an approximation), or computed from the DEM in azimuth bins
+    /// (`body.horizon_azimuths`, close to ray marching once computed; see `docs/scene.md`).
     HorizonMap,
 }
 

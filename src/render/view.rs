@@ -194,8 +194,9 @@ impl<'a> View<'a> {
 
     /// Hides what the relief hides at the surface point `p` over CSF unit direction `dir`:
     /// `g.mu0` (the Sun) and `g.mu` (the camera) become 0 where the terrain blocks them
-    /// (ray marching), or where they rise less than the horizon map's horizon
-    /// (`horizon_sin` from [`View::surface_point`]). Nothing without self-shadowing.
+    /// (ray marching), or where they rise less than the horizon: the DEM's own in their
+    /// azimuth, or the horizon map's (`horizon_sin` from [`View::surface_point`]). Nothing
+    /// without self-shadowing.
     #[inline]
     pub fn shadow(&self, dir: DVec3, p: DVec3, horizon_sin: Option<f64>, g: &mut Local) {
         let Some(r) = self.relief else {
@@ -210,6 +211,16 @@ impl<'a> View<'a> {
                     g.mu0 = 0.0;
                 }
                 if g.mu > 0.0 && r.occluded(up, to(self.cam_csf)) {
+                    g.mu = 0.0;
+                }
+            }
+            SelfShadowing::HorizonMap if r.dem_horizon.is_some() => {
+                let up = self.body_dir(dir);
+                let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
+                if g.mu0 > 0.0 && r.horizon_hides(up, to(self.sun_csf)) {
+                    g.mu0 = 0.0;
+                }
+                if g.mu > 0.0 && r.horizon_hides(up, to(self.cam_csf)) {
                     g.mu = 0.0;
                 }
             }

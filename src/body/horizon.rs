@@ -1,0 +1,264 @@
+//! Horizons computed from the DEM in azimuth bins: the fast alternative to ray marching
+//! (Eq. 33) that, unlike a map of one horizon per texel, knows where the Sun stands.
+//!
+//! For every texel of the DEM's grid and each of `n` azimuths `phi_k = 2 pi k / n` (from east
+//! towards north), the terrain is walked along the great circle from the texel's centre, a
+//! quarter texel of latitude a step (ray marching's), and the horizon is the highest
+//! elevation seen, as its sine, above the sphere's tangent plane at the point `(R + h) up`:
+//! `sin e = (r cos g - r0) / |q - p|` for terrain at radius `r` and arc `g`. A direction from
+//! the point is hidden when it rises less than the horizon in its azimuth: that is ray
+//! marching's test, since the ray and the terrain it passes over lie in the one plane through
+//! the centre. The walk stops where even the highest point of the DEM would sit below the
+//! horizon found so far (or below the horizontal: like ray marching, a direction that falls
+//! below the horizontal is left to the BRDF's cosines).
+//!
+//! Only directions that rise more slowly than the steepest slope within the walk's reach can
+//! be hidden: that slope is kept per texel (the steepest one-sided difference, which bounds
+//! the bilinear DEM's gradient, taken over a window as wide as the reach), so that smooth
+//! regions ask for no walk at all even when some crater wall elsewhere is steep.
+//!
+//! Texels are computed the first time a frame asks for them, a chunk of a row at a time, and
+//! kept: only the terminator and limb bands ask, and the next frames along a trajectory mostly
+//! find them. Every texel of a row walks the same path shifted in longitude (a rotation about
+//! the pole), so a chunk turns its paths into longitude offsets and latitudes once, and the
+//! walks themselves are map lookups only. The values are a pure function of the DEM, so which
+//! thread computes a chunk changes nothing in the image.
+
+use super::maps::{Map, Taps};
+use glam::DVec3;
+use std::sync::OnceLock;
+
+/// The walk's step, in texels of latitude: ray marching's.
+const STEP_TEXELS: f64 = 0.25;
+/// Texels of a row computed together on first use.
+const CHUNK: usize = 8;
+/// `sin e` in `[0, 1]` is kept as `u16`.
+const SCALE: f64 = u16::MAX as f64;
+
+/// The azimuth-resolved horizon of a DEM, filled on demand. See the module docs.
+#[derive(Debug)]
+pub struct DemHorizon {
+    azimuths: usize,
+    radius_m: f64,
+    /// The highest point above `radius_m` [m].
+    top_m: f64,
+    /// `(sin g, cos g)` of the walk's arcs `g`, out to where no terrain can rise above the
+    /// horizontal of the lowest point.
+    arcs: Vec<(f64, f64)>,
+    /// Per texel, the tangent of the steepest slope within the walk's reach.
+    reach_slope: Vec<f32>,
+    chunks_per_row: usize,
+    /// Per chunk (row-major), `azimuths` values a texel.
+    chunks: Vec<OnceLock<Box<[u16]>>>,
+}
+
+impl DemHorizon {
+    /// An empty cache for the DEM `heights` [m above `radius_m`], `azimuths` bins (at least 4).
+    pub fn new(heights: &Map, radius_m: f64, azimuths: usize) -> DemHorizon {
+        let (lo, hi) = heights
+            .values
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        let (bottom_m, top_m) = (lo as f64, hi as f64);
+        let far = ((radius_m + bottom_m) / (radius_m + top_m))
+            .clamp(-1.0, 1.0)
+            .acos();
+        let step = STEP_TEXELS * heights.spacing_rad().1;
+        let arcs = (1..)
+            .map(|k| k as f64 * step)
+            .take_while(|&g| g <= far + step && g < std::f64::consts::FRAC_PI_2)
+            .map(f64::sin_cos)
+            .collect();
+        let chunks_per_row = heights.width.div_ceil(CHUNK);
+        DemHorizon {
+            azimuths: azimuths.max(4),
+            radius_m,
+            top_m,
+            arcs,
+            reach_slope: reach_slope(heights, radius_m, far),
+            chunks_per_row,
+            chunks: (0..chunks_per_row * heights.height)
+                .map(|_| OnceLock::new())
+                .collect(),
+        }
+    }
+
+    pub fn azimuths(&self) -> usize {
+        self.azimuths
+    }
+
+    /// How many texels have been computed so far.
+    pub fn computed_texels(&self) -> usize {
+        self.chunks
+            .iter()
+            .filter_map(|c| c.get())
+            .map(|c| c.len() / self.azimuths)
+            .sum()
+    }
+
+    /// Whether a direction rising by `rise` (the sine of its elevation) can be hidden
+    /// anywhere around `taps`: it rises more slowly than the steepest slope within reach.
+    pub fn may_hide(&self, taps: &Taps, rise: f64) -> bool {
+        let slope = taps
+            .texels()
+            .map(|(t, _)| self.reach_slope[t])
+            .fold(0.0f32, f32::max) as f64;
+        rise < slope * (1.0 - rise * rise).max(0.0).sqrt()
+    }
+
+    /// The sine of the horizon's elevation at `taps` (on `heights`' grid, the DEM this cache
+    /// was made for) in the azimuth `azimuth_rad` (from east towards north): bilinear over the
+    /// texels, linear between the two nearest bins. A pole's share of the taps is left out
+    /// (the texels' weights are renormalised).
+    pub fn sin_at(&self, heights: &Map, taps: &Taps, azimuth_rad: f64) -> f64 {
+        let n = self.azimuths;
+        let f = azimuth_rad.rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU * n as f64;
+        let k0 = (f as usize).min(n - 1);
+        let (k1, t) = ((k0 + 1) % n, f - k0 as f64);
+        let (mut sum, mut weight) = (0.0, 0.0);
+        for (texel, w) in taps.texels() {
+            if w == 0.0 {
+                continue;
+            }
+            let values = self.texel(heights, texel);
+            let v = (1.0 - t) * values[k0] as f64 + t * values[k1] as f64;
+            sum += w * v;
+            weight += w;
+        }
+        if weight > 0.0 {
+            sum / weight / SCALE
+        } else {
+            0.0
+        }
+    }
+
+    /// The horizon of one texel, every azimuth.
+    fn texel(&self, heights: &Map, texel: usize) -> &[u16] {
+        let (row, col) = (texel / heights.width, texel % heights.width);
+        let c = row * self.chunks_per_row + col / CHUNK;
+        let chunk = self.chunks[c].get_or_init(|| self.fill(heights, row, col / CHUNK * CHUNK));
+        let i = col % CHUNK;
+        &chunk[i * self.azimuths..(i + 1) * self.azimuths]
+    }
+
+    /// The horizons of the chunk of row `row` from column `first`.
+    fn fill(&self, heights: &Map, row: usize, first: usize) -> Box<[u16]> {
+        let n = self.azimuths;
+        let last = (first + CHUNK).min(heights.width);
+        // The paths from the chunk's first texel, as longitude offsets and latitudes.
+        let (lon0, lat) = heights.texel_centre(first, row);
+        let up = crate::geometry::unit_from_lon_lat(lon0, lat);
+        let (east, north) = crate::geometry::east_north(up);
+        let mut path = Vec::with_capacity(n * self.arcs.len());
+        for k in 0..n {
+            let phi = std::f64::consts::TAU * k as f64 / n as f64;
+            let along = phi.cos() * east + phi.sin() * north;
+            for &(s, c) in &self.arcs {
+                let q: DVec3 = up * c + along * s;
+                let (lon, lat) = crate::geometry::lon_lat(q);
+                path.push((lon - lon0, lat));
+            }
+        }
+        let r_top = self.radius_m + self.top_m;
+        let (dlon, _) = heights.spacing_rad();
+        let mut out = vec![0u16; (last - first) * n];
+        for (col, values) in (first..last).zip(out.chunks_mut(n)) {
+            let lon = lon0 + (col - first) as f64 * dlon;
+            let r0 = self.radius_m + heights.values[row * heights.width + col] as f64;
+            // `sin e` of terrain at radius `r` and arc `(sin g, cos g)` seen from `r0 up`.
+            let sin_elevation = |r: f64, (s, c): (f64, f64)| {
+                let (x, y) = (r * c - r0, r * s);
+                x / (x * x + y * y).sqrt()
+            };
+            for (value, walk) in values.iter_mut().zip(path.chunks(self.arcs.len())) {
+                let mut best = 0.0f64;
+                for (&sc, &(dl, la)) in self.arcs.iter().zip(walk) {
+                    // The highest point of the DEM at this arc bounds the rest of the walk.
+                    if sin_elevation(r_top, sc) <= best {
+                        break;
+                    }
+                    if let Some(h) = heights.sample(lon + dl, la) {
+                        best = best.max(sin_elevation(self.radius_m + h, sc));
+                    }
+                }
+                *value = (best * SCALE).round() as u16;
+            }
+        }
+        out.into_boxed_slice()
+    }
+}
+
+/// Per texel, the tangent of the steepest slope within `reach_rad` of arc: the steepest
+/// one-sided differences east-west and north-south [m/m] combined, then the largest over a
+/// window of that reach in latitude and (wider towards the poles) in longitude.
+fn reach_slope(heights: &Map, radius_m: f64, reach_rad: f64) -> Vec<f32> {
+    let (w, h) = (heights.width, heights.height);
+    let (dlon, dlat) = heights.spacing_rad();
+    let v = |r: usize, c: usize| heights.values[r * w + c] as f64;
+    let wraps = heights.wraps();
+    let mut slope = vec![0.0f32; w * h];
+    for r in 0..h {
+        let dx = radius_m * heights.row_lat(r).cos().max(1e-6) * dlon;
+        let dy = radius_m * dlat;
+        for c in 0..w {
+            let (cw, ce) = if wraps {
+                ((c + w - 1) % w, (c + 1) % w)
+            } else {
+                (c.saturating_sub(1), (c + 1).min(w - 1))
+            };
+            let x = (v(r, ce) - v(r, c)).abs().max((v(r, c) - v(r, cw)).abs()) / dx;
+            let (rn, rs) = (r.saturating_sub(1), (r + 1).min(h - 1));
+            let y = (v(rs, c) - v(r, c)).abs().max((v(r, c) - v(rn, c)).abs()) / dy;
+            slope[r * w + c] = x.hypot(y) as f32;
+        }
+    }
+    // Along each row, a window of the reach in longitude.
+    let mut rows = vec![0.0f32; w * h];
+    for r in 0..h {
+        let cos = heights.row_lat(r).cos().max(1e-6);
+        let half = ((reach_rad / (dlon * cos)).ceil() as usize).min(w);
+        let row = &slope[r * w..(r + 1) * w];
+        for c in 0..w {
+            let mut m = 0.0f32;
+            if 2 * half + 1 >= w {
+                m = row.iter().cloned().fold(0.0, f32::max);
+            } else {
+                for k in 0..=2 * half {
+                    let cc = c as isize + k as isize - half as isize;
+                    let cc = if wraps {
+                        cc.rem_euclid(w as isize) as usize
+                    } else if cc < 0 || cc >= w as isize {
+                        continue;
+                    } else {
+                        cc as usize
+                    };
+                    m = m.max(row[cc]);
+                }
+            }
+            rows[r * w + c] = m;
+        }
+    }
+    // Then across rows, a window of the reach in latitude.
+    let half = (reach_rad / dlat).ceil() as usize;
+    let mut out = vec![0.0f32; w * h];
+    for r in 0..h {
+        let (r0, r1) = (r.saturating_sub(half), (r + half).min(h - 1));
+        for c in 0..w {
+            out[r * w + c] = (r0..=r1).map(|rr| rows[rr * w + c]).fold(0.0, f32::max);
+        }
+    }
+    out
+}
+
+/// Two caches are equal when they would hold the same values for equal DEMs.
+impl PartialEq for DemHorizon {
+    fn eq(&self, other: &Self) -> bool {
+        (self.azimuths, self.radius_m, self.top_m, self.chunks.len())
+            == (
+                other.azimuths,
+                other.radius_m,
+                other.top_m,
+                other.chunks.len(),
+            )
+    }
+}

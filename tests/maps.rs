@@ -152,6 +152,16 @@ fn a_sloping_dem_tilts_the_normals_by_its_slope() {
     assert!((ratio * (1.0 + s * s) - 1.0).abs() < 0.01, "{ratio}");
 }
 
+/// The pixels of the lit disk (over 0.1 % of the peak) that `shadowed` makes more than 5 %
+/// darker than `off`.
+fn darkened(off: &[f64], shadowed: &[f64]) -> Vec<bool> {
+    let peak = off.iter().cloned().fold(0.0, f64::max);
+    off.iter()
+        .zip(shadowed)
+        .map(|(&a, &b)| a > 1e-3 * peak && (a - b) / a > 0.05)
+        .collect()
+}
+
 /// Self-shadowing on the shared Moon (issue 3, item 3): the horizon map, the fast
 /// alternative, against ray marching over the DEM. Of the pixels ray marching darkens by more
 /// than 5 %, the horizon map darkens 88 %; its horizon is the same in every azimuth, so it
@@ -167,14 +177,7 @@ fn the_horizon_map_shadows_where_ray_marching_does() {
     let (ray_total, ray) = total(&cfg);
     cfg.settings.self_shadowing = SelfShadowing::HorizonMap;
     let (hor_total, hor) = total(&cfg);
-    let peak = off.iter().cloned().fold(0.0, f64::max);
-    let darkened = |x: &[f64]| -> Vec<bool> {
-        off.iter()
-            .zip(x)
-            .map(|(&a, &b)| a > 1e-3 * peak && (a - b) / a > 0.05)
-            .collect()
-    };
-    let (dr, dh) = (darkened(&ray), darkened(&hor));
+    let (dr, dh) = (darkened(&off, &ray), darkened(&off, &hor));
     let n_ray = dr.iter().filter(|&&v| v).count();
     let n_hor = dh.iter().filter(|&&v| v).count();
     let both = dr.iter().zip(&dh).filter(|(a, b)| **a && **b).count();
@@ -228,13 +231,7 @@ fn the_dem_horizon_shadows_as_ray_marching_does() {
         .unwrap();
 
     let peak = off.iter().cloned().fold(0.0, f64::max);
-    let darkened = |x: &[f64]| -> Vec<bool> {
-        off.iter()
-            .zip(x)
-            .map(|(&a, &b)| a > 1e-3 * peak && (a - b) / a > 0.05)
-            .collect()
-    };
-    let (dr, dh) = (darkened(&ray), darkened(&cold));
+    let (dr, dh) = (darkened(&off, &ray), darkened(&off, &cold));
     let count = |v: &[bool]| v.iter().filter(|&&x| x).count() as f64;
     let both = dr.iter().zip(&dh).filter(|(a, b)| **a && **b).count() as f64;
     // The 99th percentile of |x / ray - 1| over the lit disk.

@@ -18,12 +18,47 @@ use std::time::{Duration, Instant};
 
 const SCREEN: [usize; 2] = [1280, 1024];
 
-/// Kills its child when dropped, so that a failing test leaves no X server behind.
+/// Stops its child when dropped, so that a failing test leaves no X server behind: SIGTERM
+/// first, which lets an X server remove its lock file and socket, then SIGKILL after 2 s.
 struct Reaped(Child);
 impl Drop for Reaped {
     fn drop(&mut self) {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.0.id().to_string()])
+            .status();
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(2) {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
         let _ = self.0.kill();
         let _ = self.0.wait();
+    }
+}
+
+/// Whether X display `n` can be taken: no lock file, or one naming a process that no longer
+/// runs (a server killed without cleaning up, whose lock and socket are removed here so the
+/// wait for the new socket cannot be fooled by the old one). A socket without a lock is
+/// taken.
+fn display_free(n: u32) -> bool {
+    let lock = PathBuf::from(format!("/tmp/.X{n}-lock"));
+    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
+    match std::fs::read_to_string(&lock) {
+        Ok(text) => {
+            let alive = text
+                .trim()
+                .parse::<u32>()
+                .is_ok_and(|pid| Path::new(&format!("/proc/{pid}")).exists());
+            if alive {
+                return false;
+            }
+            let _ = std::fs::remove_file(&lock);
+            let _ = std::fs::remove_file(&socket);
+            !lock.exists() && !socket.exists()
+        }
+        Err(_) => !socket.exists(),
     }
 }
 
@@ -43,7 +78,7 @@ fn start_xvfb() -> (Reaped, String) {
     let xvfb = tool("Xvfb");
     for n in 91..120 {
         let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-        if socket.exists() || Path::new(&format!("/tmp/.X{n}-lock")).exists() {
+        if !display_free(n) {
             continue;
         }
         let screen = format!("{}x{}x24", SCREEN[0], SCREEN[1]);

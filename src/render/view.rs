@@ -204,25 +204,9 @@ impl<'a> View<'a> {
         };
         match self.shadows {
             SelfShadowing::Off => {}
-            SelfShadowing::RayMarching => {
-                let up = self.body_dir(dir);
-                let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
-                if g.mu0 > 0.0 && r.occluded(up, to(self.sun_csf)) {
-                    g.mu0 = 0.0;
-                }
-                if g.mu > 0.0 && r.occluded(up, to(self.cam_csf)) {
-                    g.mu = 0.0;
-                }
-            }
+            SelfShadowing::RayMarching => self.hide(dir, p, g, |up, to| r.occluded(up, to)),
             SelfShadowing::HorizonMap if r.dem_horizon.is_some() => {
-                let up = self.body_dir(dir);
-                let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
-                if g.mu0 > 0.0 && r.horizon_hides(up, to(self.sun_csf)) {
-                    g.mu0 = 0.0;
-                }
-                if g.mu > 0.0 && r.horizon_hides(up, to(self.cam_csf)) {
-                    g.mu = 0.0;
-                }
+                self.hide(dir, p, g, |up, to| r.horizon_hides(up, to))
             }
             SelfShadowing::HorizonMap => {
                 let top = r.horizon_sin_max();
@@ -238,6 +222,20 @@ impl<'a> View<'a> {
                     }
                 }
             }
+        }
+    }
+
+    /// Zeroes `g.mu0` and `g.mu` where `hidden(up, toward)` (body frame: the point's
+    /// direction from the centre, the unit direction to the Sun or the camera) says so.
+    #[inline(always)]
+    fn hide(&self, dir: DVec3, p: DVec3, g: &mut Local, hidden: impl Fn(DVec3, DVec3) -> bool) {
+        let up = self.body_dir(dir);
+        let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
+        if g.mu0 > 0.0 && hidden(up, to(self.sun_csf)) {
+            g.mu0 = 0.0;
+        }
+        if g.mu > 0.0 && hidden(up, to(self.cam_csf)) {
+            g.mu = 0.0;
         }
     }
 

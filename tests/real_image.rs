@@ -24,6 +24,9 @@ fn the_rendered_bfs_photo_matches_the_real_one() {
     // The physical camera model (15 dB on a 12-bit ADC spanning the full well at 0 dB, 15 %
     // atmosphere): the photo is about 1.6 times brighter than the rendering.
     assert!((1.5..1.7).contains(&c.total_dn_ratio), "{c:?}");
+    // That is, the photo asks for about 3.4 DN/e- at 12 bit where the model has 2.14.
+    let implied = report.implied_adc_gain_dn_per_e.unwrap();
+    assert!((3.2..3.6).contains(&implied), "{implied}");
     let t = &c.ssim;
     assert!(t.structure.mean >= 0.93, "{c:?}");
     assert!(t.contrast.mean >= 0.87, "{c:?}");

@@ -19,6 +19,11 @@ pub struct CompareReport {
     /// SSIM's `L` [DN]: the saved depth's full scale.
     pub full_scale_dn: f64,
     pub comparison: Comparison,
+    /// The ADC gain [DN/e-, at `bit_depth`] at which the rendering's total DN would equal the
+    /// photo's: the configured gain times `total_dn_ratio`, for a camera model without offset
+    /// (`None` with one). A diagnostic of the camera model's absolute scale, never fed back;
+    /// saturated photo pixels make it a lower bound.
+    pub implied_adc_gain_dn_per_e: Option<f64>,
     pub render_ms: f64,
 }
 
@@ -75,6 +80,8 @@ pub fn run(
         photo: photo.display().to_string(),
         photo_sha256: crate::io::sha256_hex(&bytes),
         full_scale_dn,
+        implied_adc_gain_dn_per_e: (det.offset_dn == 0.0)
+            .then(|| det.adc_gain_dn_per_e * comparison.total_dn_ratio),
         comparison,
         render_ms,
     })

@@ -248,7 +248,7 @@ fn bad_poses_are_render_errors_not_panics() {
     let cfg = SceneSpec::default().config();
     let mut r = Renderer::new(1).unwrap();
     let mut try_pose = |f: &dyn Fn(&mut optistim::scene::Pose)| {
-        let mut p = cfg.pose.clone();
+        let mut p = cfg.pose;
         f(&mut p);
         r.render(&cfg.scene, &p, &cfg.settings).map(|_| ())
     };

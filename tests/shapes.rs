@@ -80,6 +80,8 @@ fn ellipsoid() -> String {
 
 #[test]
 fn an_ellipsoid_at_opposition_reflects_its_projected_area() {
+    // The axis indexes the camera's position and the other two semi-axes as well.
+    #[allow(clippy::needless_range_loop)]
     for axis in 0..3 {
         let (sphere, _, _) = render(axis, &format!("radius_m = {R_MOON}\n"));
         let (ell, pl, w) = render(axis, &ellipsoid());

@@ -81,7 +81,7 @@ pub fn run(
         photo_sha256: crate::io::sha256_hex(&bytes),
         full_scale_dn,
         implied_adc_gain_dn_per_e: (det.offset_dn == 0.0)
-            .then(|| det.adc_gain_dn_per_e * comparison.total_dn_ratio),
+            .then_some(det.adc_gain_dn_per_e * comparison.total_dn_ratio),
         comparison,
         render_ms,
     })

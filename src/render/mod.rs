@@ -481,6 +481,8 @@ fn fit_slopes(trig: &GridTrig, buf: &mut Buffers) {
                     by += dy * dd;
                 }
                 let det = sxx * syy - sxy * sxy;
+                // Negated so that a NaN determinant skips the slope too.
+                #[allow(clippy::neg_cmp_op_on_partial_ord)]
                 if !(det > 1e-9 * (sxx + syy) * (sxx + syy)) {
                     continue;
                 }

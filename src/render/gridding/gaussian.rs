@@ -24,10 +24,10 @@ pub fn splat(p: [f64; 2], value: f64, window: u32, sigma: f64, acc: &mut Accum) 
         sv += wv[a];
     }
     let norm = value / (su * sv);
-    for b in 0..n {
-        let row = wv[b] * norm;
-        for a in 0..n {
-            acc.add(pi - half + a as i64, pj - half + b as i64, wu[a] * row);
+    for (b, &wv_b) in wv[..n].iter().enumerate() {
+        let row = wv_b * norm;
+        for (a, &wu_a) in wu[..n].iter().enumerate() {
+            acc.add(pi - half + a as i64, pj - half + b as i64, wu_a * row);
         }
     }
 }

@@ -90,6 +90,7 @@ fn scatter_table(
 }
 
 /// Separable conservative resampling of a `w_src x h_src` image to `w_dst x h_dst`.
+#[allow(clippy::too_many_arguments)]
 fn resample(
     src: &[f64],
     w_src: usize,

@@ -15,7 +15,9 @@
 //! Only directions that rise more slowly than the steepest slope within the walk's reach can
 //! be hidden: that slope is kept per texel (the steepest one-sided difference, which bounds
 //! the bilinear DEM's gradient, taken over a window as wide as the reach), so that smooth
-//! regions ask for no walk at all even when some crater wall elsewhere is steep.
+//! regions ask for no walk at all even when some crater wall elsewhere is steep. The same
+//! bound lets the walk pass over stretches of terrain that cannot rise above the horizon found
+//! so far.
 //!
 //! Texels are computed the first time a frame asks for them, a chunk of a row at a time, and
 //! kept: only the terminator and limb bands ask, and the next frames along a trajectory mostly
@@ -30,6 +32,10 @@ use std::sync::OnceLock;
 
 /// The walk's step, in texels of latitude: ray marching's.
 const STEP_TEXELS: f64 = 0.25;
+/// Steps a segment of the walk spans (two texels): a segment whose terrain, bounded by its
+/// end samples and the reach's slope, cannot rise above the horizon found so far is passed
+/// over with one sample.
+const SEGMENT: usize = 8;
 /// Texels of a row computed together on first use.
 const CHUNK: usize = 8;
 /// `sin e` in `[0, 1]` is kept as `u16`.
@@ -160,7 +166,10 @@ impl DemHorizon {
             }
         }
         let r_top = self.radius_m + self.top_m;
-        let (dlon, _) = heights.spacing_rad();
+        let (dlon, dlat) = heights.spacing_rad();
+        // A segment of SEGMENT steps [m]: between two samples of it, the terrain rises at most
+        // the reach's slope times half of it above their mean.
+        let segment_m = self.radius_m * SEGMENT as f64 * STEP_TEXELS * dlat;
         let mut out = vec![0u16; (last - first) * n];
         for (col, values) in (first..last).zip(out.chunks_mut(n)) {
             let lon = lon0 + (col - first) as f64 * dlon;
@@ -170,16 +179,39 @@ impl DemHorizon {
                 let (x, y) = (r * c - r0, r * s);
                 x / (x * x + y * y).sqrt()
             };
+            let texel = row * heights.width + col;
+            let rise = self.reach_slope[texel] as f64 * segment_m;
+            let h0 = heights.values[texel] as f64;
             for (value, walk) in values.iter_mut().zip(path.chunks(self.arcs.len())) {
                 let mut best = 0.0f64;
-                for (&sc, &(dl, la)) in self.arcs.iter().zip(walk) {
+                // Segment by segment: sampled a step at a time only where the bound on its
+                // terrain could rise above the horizon found so far. What is skipped cannot
+                // change the result (as far as the one-sided slopes bound the bilinear DEM's):
+                // on config/moon.toml it is the same as walking every step.
+                let mut h_start = Some(h0);
+                for (arcs, walk) in self.arcs.chunks(SEGMENT).zip(walk.chunks(SEGMENT)) {
                     // The highest point of the DEM at this arc bounds the rest of the walk.
-                    if sin_elevation(r_top, sc) <= best {
+                    if sin_elevation(r_top, arcs[0]) <= best {
                         break;
                     }
-                    if let Some(h) = heights.sample(lon + dl, la) {
-                        best = best.max(sin_elevation(self.radius_m + h, sc));
+                    let (dl, la) = walk[walk.len() - 1];
+                    let h_end = heights.sample(lon + dl, la);
+                    if let (Some(a), Some(b), true) = (h_start, h_end, arcs.len() == SEGMENT) {
+                        let top = 0.5 * (a + b + rise);
+                        if sin_elevation(self.radius_m + top, arcs[0]) <= best {
+                            h_start = h_end;
+                            continue;
+                        }
                     }
+                    for (&sc, &(dl, la)) in arcs.iter().zip(walk) {
+                        if sin_elevation(r_top, sc) <= best {
+                            break;
+                        }
+                        if let Some(h) = heights.sample(lon + dl, la) {
+                            best = best.max(sin_elevation(self.radius_m + h, sc));
+                        }
+                    }
+                    h_start = h_end;
                 }
                 *value = (best * SCALE).round() as u16;
             }
@@ -215,8 +247,15 @@ fn reach_slope(heights: &Map, radius_m: f64, reach_rad: f64) -> Vec<f32> {
     // Along each row, a window of the reach in longitude.
     let mut rows = vec![0.0f32; w * h];
     for r in 0..h {
-        let cos = heights.row_lat(r).cos().max(1e-6);
-        let half = ((reach_rad / (dlon * cos)).ceil() as usize).min(w);
+        // The widest longitude span of an arc of the reach that passes through this row
+        // starting within the reach of it (a texel more for the bilinear footprint).
+        let lat = (heights.row_lat(r).abs() + reach_rad).min(std::f64::consts::FRAC_PI_2);
+        let s = reach_rad.sin() / lat.cos().max(1e-12);
+        let half = if s >= 1.0 {
+            w
+        } else {
+            ((s.asin() / dlon).ceil() as usize + 1).min(w)
+        };
         let row = &slope[r * w..(r + 1) * w];
         for c in 0..w {
             let mut m = 0.0f32;
@@ -239,7 +278,7 @@ fn reach_slope(heights: &Map, radius_m: f64, reach_rad: f64) -> Vec<f32> {
         }
     }
     // Then across rows, a window of the reach in latitude.
-    let half = (reach_rad / dlat).ceil() as usize;
+    let half = (reach_rad / dlat).ceil() as usize + 1;
     let mut out = vec![0.0f32; w * h];
     for r in 0..h {
         let (r0, r1) = (r.saturating_sub(half), (r + half).min(h - 1));

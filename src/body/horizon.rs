@@ -93,6 +93,28 @@ impl DemHorizon {
         self.azimuths
     }
 
+    /// Computes every texel not computed yet, row by row, until `stop` says so; returns how
+    /// many texels it computed. Meant for a background thread (the daemon's warm-up): frames
+    /// that meanwhile ask for a chunk compute it themselves or wait for it, never twice.
+    pub fn warm(&self, heights: &Map, stop: impl Fn() -> bool) -> usize {
+        let mut computed = 0;
+        for row in 0..heights.height {
+            if stop() {
+                break;
+            }
+            for first in (0..heights.width).step_by(CHUNK) {
+                let c = row * self.chunks_per_row + first / CHUNK;
+                if self.chunks[c].get().is_none() {
+                    let _ = self.chunks[c].get_or_init(|| {
+                        computed += (first + CHUNK).min(heights.width) - first;
+                        self.fill(heights, row, first)
+                    });
+                }
+            }
+        }
+        computed
+    }
+
     /// How many texels have been computed so far.
     pub fn computed_texels(&self) -> usize {
         self.chunks

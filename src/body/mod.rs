@@ -611,6 +611,47 @@ mod tests {
         assert!(!relief.occluded(up, up));
     }
 
+    /// Warming the whole cache up gives the values a lookup computes on demand.
+    #[test]
+    fn a_warmed_dem_horizon_equals_one_filled_on_demand() {
+        // A 3 km hill on a 64 x 64 DEM of 4 x 4 deg.
+        let n = 64usize;
+        let values = (0..n * n)
+            .map(|i| {
+                let (x, y) = ((i % n) as f64 - 31.5, (i / n) as f64 - 31.5);
+                3000.0 * (-(x * x + y * y) / 40.0).exp()
+            })
+            .collect();
+        let enc = Encoding {
+            lon_limits_deg: [-2.0, 2.0],
+            lat_limits_deg: [-2.0, 2.0],
+            ..Default::default()
+        };
+        let dem = Map::from_values(std::path::Path::new("hill"), n, n, values, &enc).unwrap();
+        let relief = Relief::new(dem, 1_737_400.0, false).unwrap();
+        let (lazy, warm) = (
+            relief.clone().with_dem_horizon(8),
+            relief.with_dem_horizon(8),
+        );
+        let dh = warm.dem_horizon.as_ref().unwrap();
+        let texels = warm.heights_m.width * warm.heights_m.height;
+        assert_eq!(dh.warm(&warm.heights_m, || false), texels);
+        assert_eq!(dh.computed_texels(), texels);
+        assert_eq!(dh.warm(&warm.heights_m, || false), 0);
+        let elevation = 5f64.to_radians();
+        let mut hidden = 0;
+        for k in 0..400 {
+            let up = crate::geometry::unit_from_lon_lat(-0.03 + k as f64 * 1.5e-4, 0.001);
+            let east = DVec3::Z.cross(up).normalize();
+            let sun = east * elevation.cos() + up * elevation.sin();
+            let h = lazy.horizon_hides(up, sun);
+            assert_eq!(h, warm.horizon_hides(up, sun));
+            hidden += h as usize;
+        }
+        // West of the hill, the low Sun in the east is behind it.
+        assert!(hidden > 100, "{hidden}");
+    }
+
     /// The DEM's own horizon (16 azimuths) casts the same shadow, within one cell; the Sun
     /// from the west of the wall, the wall at its back, is not hidden.
     #[test]

@@ -472,6 +472,27 @@ impl Server {
             next_conn: std::sync::atomic::AtomicU64::new(1),
             shutdown: stop_rx.clone(),
         });
+        // Horizons computed from the DEM fill on demand: the first frames over a region would
+        // pay for them, so a background thread computes them all from the start (the frames'
+        // renderer shares the cache and never computes a texel twice).
+        if let Some(relief) = &options.config.scene.body.relief
+            && let Some(horizon) = relief.dem_horizon.clone()
+        {
+            let heights = relief.heights_m.clone();
+            let stop = stop_rx.clone();
+            std::thread::Builder::new()
+                .name("optistim-horizon".into())
+                .spawn(move || {
+                    let t0 = Instant::now();
+                    let texels = horizon.warm(&heights, || *stop.borrow());
+                    tracing::info!(
+                        texels,
+                        seconds = t0.elapsed().as_secs_f64(),
+                        "DEM horizon computed"
+                    );
+                })
+                .map_err(|e| ServerError::Runtime(e.to_string()))?;
+        }
         let frame_thread = FrameThread::new(maker, present, shared.clone());
         let frame_thread = std::thread::Builder::new()
             .name("optistim-frames".into())

@@ -569,14 +569,22 @@ mod tests {
                 }
             })
             .collect();
+        (
+            square_dem("wall", n, values),
+            radius * cell_deg.to_radians(),
+        )
+    }
+
+    /// A relief (not displacing, on the Moon's radius) of an `n x n` DEM of heights [m] over
+    /// 4 x 4 deg around (0, 0).
+    fn square_dem(name: &str, n: usize, values: Vec<f64>) -> Relief {
         let enc = Encoding {
             lon_limits_deg: [-2.0, 2.0],
             lat_limits_deg: [-2.0, 2.0],
             ..Default::default()
         };
-        let dem = Map::from_values(std::path::Path::new("wall"), n, n, values, &enc).unwrap();
-        let relief = Relief::new(dem, radius, false).unwrap();
-        (relief, radius * cell_deg.to_radians())
+        let dem = Map::from_values(std::path::Path::new(name), n, n, values, &enc).unwrap();
+        Relief::new(dem, 1_737_400.0, false).unwrap()
     }
 
     const WALL_M: f64 = 1000.0;
@@ -622,13 +630,7 @@ mod tests {
                 3000.0 * (-(x * x + y * y) / 40.0).exp()
             })
             .collect();
-        let enc = Encoding {
-            lon_limits_deg: [-2.0, 2.0],
-            lat_limits_deg: [-2.0, 2.0],
-            ..Default::default()
-        };
-        let dem = Map::from_values(std::path::Path::new("hill"), n, n, values, &enc).unwrap();
-        let relief = Relief::new(dem, 1_737_400.0, false).unwrap();
+        let relief = square_dem("hill", n, values);
         let (lazy, warm) = (
             relief.clone().with_dem_horizon(8),
             relief.with_dem_horizon(8),

@@ -402,6 +402,64 @@ fn an_ellipsoid_at_close_range_matches_ray_casting() {
     }
 }
 
+/// An albedo map on the ellipsoid is read where each surface point lies (its direction from
+/// the centre), not at its parameter-space direction: with a map varying in longitude and
+/// latitude, the close-range image still matches the ray cast, which looks the map up at each
+/// ray's hit. (The renderer takes the map's value at each quadrangle's centre, the ray cast at
+/// each ray: the map is smooth enough for that to stay small.)
+#[test]
+fn an_albedo_map_on_an_ellipsoid_is_read_where_the_surface_is() {
+    let dir = TempDir::new("ellipsoid_albedo");
+    let tif = dir.join("albedo.tif");
+    let (w, h) = (720u32, 360u32);
+    let values: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let lon = ((i % w) as f64 + 0.5) / w as f64 * std::f64::consts::TAU;
+            let lat = std::f64::consts::FRAC_PI_2
+                - ((i / w) as f64 + 0.5) / h as f64 * std::f64::consts::PI;
+            (0.15 + 0.08 * (2.0 * lon).sin() * lat.cos() + 0.04 * (3.0 * lat).sin()) as f32
+        })
+        .collect();
+    write_tiff::<tiff::encoder::colortype::Gray32Float>(&tif, w, h, &values);
+    let keys = format!("albedo_map = {{ path = {:?} }}", tif.display().to_string());
+    let spec = SceneSpec {
+        brdf: "lommel_seeliger",
+        albedo: 0.2,
+        camera_m: [2.6e6, 1.2e6, 1.0e6],
+        sun_m: [AU, 0.5 * AU, 0.3 * AU],
+        resolution: [256, 256],
+        focal_m: 0.002,
+        body: &keys,
+        render: "points_per_pixel = 1.0",
+        ..Default::default()
+    };
+    let cfg = optistim::config::parse(&reshaped(spec.toml(), &ellipsoid()), "shape.toml")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let plain = optistim::config::parse(
+        &reshaped(SceneSpec { body: "", ..spec }.toml(), &ellipsoid()),
+        "shape.toml",
+    )
+    .unwrap();
+    let render = |cfg: &optistim::config::Config| {
+        Renderer::new(0)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &cfg.settings)
+            .unwrap()
+            .pl
+    };
+    let (mapped, reference) = (render(&cfg), ray_cast(&cfg, 8));
+    let rel = relative_differences(&reference, &mapped);
+    let (median, p95) = (rel[rel.len() / 2], rel[rel.len() * 95 / 100]);
+    // For scale: how far the map moves the image from a uniform albedo.
+    let off = relative_differences(&render(&plain), &mapped);
+    println!(
+        "albedo map on the close ellipsoid against the ray cast: median {median:.2e} p95 \
+         {p95:.2e} (the map against a uniform albedo: median {:.2e})",
+        off[off.len() / 2]
+    );
+    assert!(median < 2e-3 && p95 < 1e-2, "{median} {p95}");
+}
+
 /// `(P/L)` per pixel of an undistorted camera by ray casting the analytic ellipsoid, `n x n`
 /// rays per pixel: `A_sun A_cam sum f_r mu0 cos(eps) / d_sun^2 dOmega`, with the ray's solid
 /// angle `dOmega = cos^3(eps) / (f_u f_v n^2)` (Eq. 9 with `mu dA / d^2 = dOmega`).
@@ -435,7 +493,14 @@ fn ray_cast(cfg: &optistim::config::Config, n: usize) -> Vec<f64> {
                     continue;
                 }
                 let d_omega = cos_eps.powi(3) / (fu * fv * (n * n) as f64);
-                *out += k * brdf.eval(&g) * g.mu0 * cos_eps / to_s.length_squared() * d_omega;
+                // An albedo map is read along the hit point's direction from the centre.
+                let f_r = match &cfg.scene.body.albedo_map {
+                    Some(m) => brdf
+                        .with_scale(m.scale_at(p.normalize(), brdf.scale()))
+                        .eval(&g),
+                    None => brdf.eval(&g),
+                };
+                *out += k * f_r * g.mu0 * cos_eps / to_s.length_squared() * d_omega;
             }
         }
     }

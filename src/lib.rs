@@ -7,7 +7,7 @@
 //!
 //! | module | holds |
 //! | --- | --- |
-//! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates, ray-sphere |
+//! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates and local east/north, ray-sphere |
 //! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45) |
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
 //! | [`body`] | the body's shape (sphere, triaxial ellipsoid; meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps, horizons computed from the DEM by azimuth |
@@ -15,7 +15,7 @@
 //! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure |
 //! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
-//! | [`render`] | the pipeline, one module per step: bounding, sampling, pruning, integration, projection, gridding, reconstruction |
+//! | [`render`] | the pipeline, one module per step: view (the CSF, and the grid's space: the CSF, or an ellipsoid's parameter space), bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
 //! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
 //! | [`pipeline`] | one pose's way to the screen: render -> signal -> stimulator -> simulated camera, timed per stage |

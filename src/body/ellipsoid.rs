@@ -1,8 +1,9 @@
 //! A triaxial ellipsoid `x^2/a^2 + y^2/b^2 + z^2/c^2 = 1` in the body frame (semi-axes along
-//! +X, +Y, +Z), parametrised like the sphere by the direction from its centre: the surface
-//! point over unit `d` is `r(d) d` with `r(d) = 1 / sqrt(dx^2/a^2 + dy^2/b^2 + dz^2/c^2)`, its
-//! outward normal `normalize(x/a^2, y/b^2, z/c^2)`. A longitude-latitude quadrangle of solid
-//! angle `dOmega` covers the area `r^2 dOmega / (n . d)` (the integrator's area factor).
+//! +X, +Y, +Z). Along the direction `d` from its centre the surface point is `r(d) d` with
+//! `r(d) = 1 / sqrt(dx^2/a^2 + dy^2/b^2 + dz^2/c^2)` and the outward normal
+//! `normalize(x/a^2, y/b^2, z/c^2)`: what the camera's keep-out distance and DEM heights above
+//! the ellipsoid are measured with. The renderer lays an undisplaced ellipsoid out in its
+//! parameter space instead, `x = A u` with `u` on the unit sphere (`render::view::Grid`).
 
 use glam::DVec3;
 

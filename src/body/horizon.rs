@@ -28,7 +28,7 @@
 
 use super::maps::{Map, Taps};
 use glam::DVec3;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 /// The walk's step, in texels of latitude: ray marching's.
 const STEP_TEXELS: f64 = 0.25;
@@ -44,6 +44,8 @@ const SCALE: f64 = u16::MAX as f64;
 /// The azimuth-resolved horizon of a DEM, filled on demand. See the module docs.
 #[derive(Debug)]
 pub struct DemHorizon {
+    /// The DEM [m above `radius_m`] the horizons are of.
+    heights: Arc<Map>,
     azimuths: usize,
     radius_m: f64,
     /// The highest point above `radius_m` [m].
@@ -60,7 +62,7 @@ pub struct DemHorizon {
 
 impl DemHorizon {
     /// An empty cache for the DEM `heights` [m above `radius_m`], `azimuths` bins (at least 4).
-    pub fn new(heights: &Map, radius_m: f64, azimuths: usize) -> DemHorizon {
+    pub fn new(heights: Arc<Map>, radius_m: f64, azimuths: usize) -> DemHorizon {
         let (lo, hi) = heights
             .values
             .iter()
@@ -81,11 +83,12 @@ impl DemHorizon {
             radius_m,
             top_m,
             arcs,
-            reach_slope: reach_slope(heights, radius_m, far),
+            reach_slope: reach_slope(&heights, radius_m, far),
             chunks_per_row,
             chunks: (0..chunks_per_row * heights.height)
                 .map(|_| OnceLock::new())
                 .collect(),
+            heights,
         }
     }
 
@@ -96,20 +99,18 @@ impl DemHorizon {
     /// Computes every texel not computed yet, row by row, until `stop` says so; returns how
     /// many texels it computed. Meant for a background thread (the daemon's warm-up): frames
     /// that meanwhile ask for a chunk compute it themselves or wait for it, never twice.
-    pub fn warm(&self, heights: &Map, stop: impl Fn() -> bool) -> usize {
+    pub fn warm(&self, stop: impl Fn() -> bool) -> usize {
+        let (w, h) = (self.heights.width, self.heights.height);
         let mut computed = 0;
-        for row in 0..heights.height {
+        for row in 0..h {
             if stop() {
                 break;
             }
-            for first in (0..heights.width).step_by(CHUNK) {
-                let c = row * self.chunks_per_row + first / CHUNK;
-                if self.chunks[c].get().is_none() {
-                    let _ = self.chunks[c].get_or_init(|| {
-                        computed += (first + CHUNK).min(heights.width) - first;
-                        self.fill(heights, row, first)
-                    });
-                }
+            for first in (0..w).step_by(CHUNK) {
+                self.chunks[row * self.chunks_per_row + first / CHUNK].get_or_init(|| {
+                    computed += (first + CHUNK).min(w) - first;
+                    self.fill(row, first)
+                });
             }
         }
         computed
@@ -134,11 +135,11 @@ impl DemHorizon {
         rise < slope * (1.0 - rise * rise).max(0.0).sqrt()
     }
 
-    /// The sine of the horizon's elevation at `taps` (on `heights`' grid, the DEM this cache
-    /// was made for) in the azimuth `azimuth_rad` (from east towards north): bilinear over the
-    /// texels, linear between the two nearest bins. A pole's share of the taps is left out
-    /// (the texels' weights are renormalised).
-    pub fn sin_at(&self, heights: &Map, taps: &Taps, azimuth_rad: f64) -> f64 {
+    /// The sine of the horizon's elevation at `taps` (on the DEM's grid) in the azimuth
+    /// `azimuth_rad` (from east towards north): bilinear over the texels, linear between the
+    /// two nearest bins. A pole's share of the taps is left out (the texels' weights are
+    /// renormalised).
+    pub fn sin_at(&self, taps: &Taps, azimuth_rad: f64) -> f64 {
         let n = self.azimuths;
         let f = azimuth_rad.rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU * n as f64;
         let k0 = (f as usize).min(n - 1);
@@ -148,7 +149,7 @@ impl DemHorizon {
             if w == 0.0 {
                 continue;
             }
-            let values = self.texel(heights, texel);
+            let values = self.texel(texel);
             let v = (1.0 - t) * values[k0] as f64 + t * values[k1] as f64;
             sum += w * v;
             weight += w;
@@ -161,16 +162,17 @@ impl DemHorizon {
     }
 
     /// The horizon of one texel, every azimuth.
-    fn texel(&self, heights: &Map, texel: usize) -> &[u16] {
-        let (row, col) = (texel / heights.width, texel % heights.width);
+    fn texel(&self, texel: usize) -> &[u16] {
+        let (row, col) = (texel / self.heights.width, texel % self.heights.width);
         let c = row * self.chunks_per_row + col / CHUNK;
-        let chunk = self.chunks[c].get_or_init(|| self.fill(heights, row, col / CHUNK * CHUNK));
+        let chunk = self.chunks[c].get_or_init(|| self.fill(row, col / CHUNK * CHUNK));
         let i = col % CHUNK;
         &chunk[i * self.azimuths..(i + 1) * self.azimuths]
     }
 
     /// The horizons of the chunk of row `row` from column `first`.
-    fn fill(&self, heights: &Map, row: usize, first: usize) -> Box<[u16]> {
+    fn fill(&self, row: usize, first: usize) -> Box<[u16]> {
+        let heights = &*self.heights;
         let n = self.azimuths;
         let last = (first + CHUNK).min(heights.width);
         // The paths from the chunk's first texel, as longitude offsets and latitudes.
@@ -195,15 +197,15 @@ impl DemHorizon {
         let mut out = vec![0u16; (last - first) * n];
         for (col, values) in (first..last).zip(out.chunks_mut(n)) {
             let lon = lon0 + (col - first) as f64 * dlon;
-            let r0 = self.radius_m + heights.values[row * heights.width + col] as f64;
+            let texel = row * heights.width + col;
+            let h0 = heights.values[texel] as f64;
+            let r0 = self.radius_m + h0;
             // `sin e` of terrain at radius `r` and arc `(sin g, cos g)` seen from `r0 up`.
             let sin_elevation = |r: f64, (s, c): (f64, f64)| {
                 let (x, y) = (r * c - r0, r * s);
                 x / (x * x + y * y).sqrt()
             };
-            let texel = row * heights.width + col;
             let rise = self.reach_slope[texel] as f64 * segment_m;
-            let h0 = heights.values[texel] as f64;
             for (value, walk) in values.iter_mut().zip(path.chunks(self.arcs.len())) {
                 let mut best = 0.0f64;
                 // Segment by segment: sampled a step at a time only where the bound on its
@@ -279,24 +281,25 @@ fn reach_slope(heights: &Map, radius_m: f64, reach_rad: f64) -> Vec<f32> {
             ((s.asin() / dlon).ceil() as usize + 1).min(w)
         };
         let row = &slope[r * w..(r + 1) * w];
-        for c in 0..w {
+        let out = &mut rows[r * w..(r + 1) * w];
+        if 2 * half + 1 >= w {
+            out.fill(row.iter().cloned().fold(0.0, f32::max));
+            continue;
+        }
+        for (c, o) in out.iter_mut().enumerate() {
             let mut m = 0.0f32;
-            if 2 * half + 1 >= w {
-                m = row.iter().cloned().fold(0.0, f32::max);
-            } else {
-                for k in 0..=2 * half {
-                    let cc = c as isize + k as isize - half as isize;
-                    let cc = if wraps {
-                        cc.rem_euclid(w as isize) as usize
-                    } else if cc < 0 || cc >= w as isize {
-                        continue;
-                    } else {
-                        cc as usize
-                    };
-                    m = m.max(row[cc]);
-                }
+            for k in 0..=2 * half {
+                let cc = c as isize + k as isize - half as isize;
+                let cc = if wraps {
+                    cc.rem_euclid(w as isize) as usize
+                } else if cc < 0 || cc >= w as isize {
+                    continue;
+                } else {
+                    cc as usize
+                };
+                m = m.max(row[cc]);
             }
-            rows[r * w + c] = m;
+            *o = m;
         }
     }
     // Then across rows, a window of the reach in latitude.

@@ -4,7 +4,10 @@
 //! triangle meshes) stand beside each other without touching the renderer's steps: the
 //! renderer asks a shape for its bounding radius, the surface point and normal in a direction
 //! from the centre (the area element follows from them), and the first intersection of a ray;
-//! only the sphere has an exact lit-and-visible region and closed-form integrals.
+//! only the sphere has closed-form integrals. The sphere's exact lit-and-visible region serves
+//! an undisplaced ellipsoid too, in its parameter space (`render::view::Grid`). A DEM's relief,
+//! its horizons ([`horizon`]) and the albedo map are looked up along the surface point's
+//! direction from the centre.
 
 pub mod ellipsoid;
 pub mod horizon;
@@ -100,18 +103,27 @@ pub struct Body {
     pub relief: Option<Relief>,
 }
 
+/// The radius of the sphere bounding the surface as rendered [m]: the shape's, or a
+/// displacing relief's highest point where that is higher.
+pub fn rendered_radius_m(shape: &Shape, relief: Option<&Relief>) -> f64 {
+    match relief {
+        Some(r) if r.displaces() => r.bounding_radius_m().max(shape.bounding_radius_m()),
+        _ => shape.bounding_radius_m(),
+    }
+}
+
 impl Body {
     /// How far from the centre a camera in the unit direction `dir` (body frame) must stay
-    /// [m]: the radius of the sphere bounding the surface as rendered (a displacing relief
-    /// included), since the renderer bounds its grid to the visible cap of that sphere; for an
-    /// undisplaced ellipsoid, bounded in its parameter space, only its own radius along `dir`.
+    /// [m]: the radius of the sphere bounding the surface as rendered ([`rendered_radius_m`]),
+    /// since the renderer bounds its grid to the visible cap of that sphere; for an undisplaced
+    /// ellipsoid, bounded in its parameter space, only its own radius along `dir`.
     pub fn keep_out_radius_m(&self, dir: DVec3) -> f64 {
-        match (&self.shape, &self.relief) {
-            (_, Some(r)) if r.displaces() => {
-                r.bounding_radius_m().max(self.shape.bounding_radius_m())
+        let relief = self.relief.as_ref();
+        match &self.shape {
+            Shape::Ellipsoid(e) if !relief.is_some_and(|r| r.displaces()) => {
+                e.surface(dir).0.length()
             }
-            (Shape::Ellipsoid(e), _) => e.surface(dir).0.length(),
-            (shape, _) => shape.bounding_radius_m(),
+            shape => rendered_radius_m(shape, relief),
         }
     }
 
@@ -260,7 +272,7 @@ impl Relief {
     /// The same relief with its horizon computed from the DEM in `azimuths` bins
     /// ([`horizon::DemHorizon`]), instead of a horizon map.
     pub fn with_dem_horizon(self, azimuths: usize) -> Relief {
-        let h = horizon::DemHorizon::new(&self.heights_m, self.radius_m, azimuths);
+        let h = horizon::DemHorizon::new(self.heights_m.clone(), self.radius_m, azimuths);
         Relief {
             dem_horizon: Some(std::sync::Arc::new(h)),
             ..self
@@ -294,7 +306,7 @@ impl Relief {
         }
         let (east, north) = crate::geometry::east_north(up);
         let azimuth = toward.dot(north).atan2(toward.dot(east));
-        rise < dh.sin_at(&self.heights_m, &taps, azimuth)
+        rise < dh.sin_at(&taps, azimuth)
     }
 
     /// The sine of the highest horizon in the map: directions rising more steeply than that
@@ -517,13 +529,8 @@ mod tests {
     use super::*;
     use maps::{Encoding, Map};
 
-    /// A 1000 m wall along the meridian at longitude 0 on a regional DEM (0.01 deg = 303 m
-    /// texels) and the Sun 10 deg above the eastern horizon: the wall's shadow on flat ground
-    /// west of it is `H / tan(10 deg) = 5671 m` long. The marched shadow ends there to within
-    /// one DEM cell. (Measured: 5382 m. Two known effects shorten it: the surface curving
-    /// away, 9 m of drop over 5.6 km, about 53 m of shadow; and bilinear interpolation, which
-    /// reaches the wall's full height only at the first texel centre, half a cell east of the
-    /// face.)
+    /// A DEM of a constant 5 km displaces the sphere into the bigger sphere: rays meet it
+    /// there to a millimetre, and a ray passing above the highest point misses.
     #[test]
     fn a_ray_meets_the_displaced_surface_where_the_bigger_sphere_is() {
         let radius = 1.0e6;
@@ -556,7 +563,6 @@ mod tests {
     /// A 1000 m wall running north-south at longitude 0-0.05 deg on a flat 4 x 4 deg DEM
     /// (400 x 400), and its cell [m].
     fn wall() -> (Relief, f64) {
-        let radius = 1_737_400.0;
         let (n, span_deg) = (400usize, 4.0);
         let cell_deg = span_deg / n as f64;
         let values = (0..n * n)
@@ -571,7 +577,7 @@ mod tests {
             .collect();
         (
             square_dem("wall", n, values),
-            radius * cell_deg.to_radians(),
+            MOON_R_M * cell_deg.to_radians(),
         )
     }
 
@@ -584,21 +590,21 @@ mod tests {
             ..Default::default()
         };
         let dem = Map::from_values(std::path::Path::new(name), n, n, values, &enc).unwrap();
-        Relief::new(dem, 1_737_400.0, false).unwrap()
+        Relief::new(dem, MOON_R_M, false).unwrap()
     }
 
+    const MOON_R_M: f64 = 1_737_400.0;
     const WALL_M: f64 = 1000.0;
 
     /// Walks west from the wall's foot with the Sun 10 deg above the eastern horizon; the
     /// shadow's end is the last point `hidden` says the Sun is hidden from, against
     /// `height / tan(elevation)`.
     fn shadow_end(hidden: impl Fn(DVec3, DVec3) -> bool, cell_m: f64) {
-        let radius = 1_737_400.0;
         let elevation = 10f64.to_radians();
         let mut end_m = 0.0;
         for k in 1..200 {
             let x_m = k as f64 * cell_m / 4.0;
-            let up = crate::geometry::unit_from_lon_lat(-x_m / radius, 0.0);
+            let up = crate::geometry::unit_from_lon_lat(-x_m / MOON_R_M, 0.0);
             let east = DVec3::Z.cross(up).normalize();
             let sun = east * elevation.cos() + up * elevation.sin();
             if hidden(up, sun) {
@@ -610,6 +616,13 @@ mod tests {
         assert!((end_m - want).abs() <= cell_m, "{end_m} vs {want}");
     }
 
+    /// A 1000 m wall along the meridian at longitude 0 on a regional DEM (0.01 deg = 303 m
+    /// texels) and the Sun 10 deg above the eastern horizon: the wall's shadow on flat ground
+    /// west of it is `H / tan(10 deg) = 5671 m` long. The marched shadow ends there to within
+    /// one DEM cell. (Measured: 5382 m. Two known effects shorten it: the surface curving
+    /// away, 9 m of drop over 5.6 km, about 53 m of shadow; and bilinear interpolation, which
+    /// reaches the wall's full height only at the first texel centre, half a cell east of the
+    /// face.)
     #[test]
     fn a_wall_casts_the_shadow_length_of_its_height_over_the_sun_elevation() {
         let (relief, cell_m) = wall();
@@ -637,9 +650,9 @@ mod tests {
         );
         let dh = warm.dem_horizon.as_ref().unwrap();
         let texels = warm.heights_m.width * warm.heights_m.height;
-        assert_eq!(dh.warm(&warm.heights_m, || false), texels);
+        assert_eq!(dh.warm(|| false), texels);
         assert_eq!(dh.computed_texels(), texels);
-        assert_eq!(dh.warm(&warm.heights_m, || false), 0);
+        assert_eq!(dh.warm(|| false), 0);
         let elevation = 5f64.to_radians();
         let mut hidden = 0;
         for k in 0..400 {

@@ -129,12 +129,7 @@ impl<'a> View<'a> {
                 cam: cam_csf,
                 sun: sun_csf,
                 phase_rad: csf.phase_rad,
-                radius: match relief {
-                    Some(r) if r.displaces() => {
-                        r.bounding_radius_m().max(shape.bounding_radius_m())
-                    }
-                    _ => shape.bounding_radius_m(),
-                },
+                radius: crate::body::rendered_radius_m(shape, relief),
                 affine: None,
             },
         };
@@ -240,9 +235,8 @@ impl<'a> View<'a> {
     }
 
     /// Surface point [m] and outward unit normal (CSF) over the grid's unit direction `dir`
-    /// ([`Grid`]): a round shape is asked directly, an ellipsoid through its parameter space,
-    /// another shape in the body frame; a displacing DEM moves the point to `R + h` and turns
-    /// the normal to its own.
+    /// ([`Grid`]): an ellipsoid through its parameter space, a sphere directly; a displacing
+    /// DEM moves the point to `R + h` and turns the normal to its own.
     #[inline(always)]
     pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
         if let Some(a) = &self.grid.affine {
@@ -256,11 +250,10 @@ impl<'a> View<'a> {
             let p = dir * (r.reference_radius_m() + at.height_m);
             return (p, self.csf_from_body * at.normal);
         }
-        if self.shape.is_round() {
-            return self.shape.surface(dir);
-        }
-        let (p, n) = self.shape.surface(self.csf.body_from_csf * dir);
-        (self.csf_from_body * p, self.csf_from_body * n)
+        // What is left is a sphere (an undisplaced ellipsoid has its parameter space), which
+        // looks the same in CSF as in the body frame.
+        debug_assert!(self.shape.is_round());
+        self.shape.surface(dir)
     }
 
     /// The body-frame unit direction from the centre to the surface point over the grid's

@@ -475,16 +475,20 @@ impl Server {
         // Horizons computed from the DEM fill on demand: the first frames over a region would
         // pay for them, so a background thread computes them all from the start (the frames'
         // renderer shares the cache and never computes a texel twice).
-        if let Some(relief) = &options.config.scene.body.relief
-            && let Some(horizon) = relief.dem_horizon.clone()
+        if let Some(horizon) = options
+            .config
+            .scene
+            .body
+            .relief
+            .as_ref()
+            .and_then(|r| r.dem_horizon.clone())
         {
-            let heights = relief.heights_m.clone();
             let stop = stop_rx.clone();
             std::thread::Builder::new()
                 .name("optistim-horizon".into())
                 .spawn(move || {
                     let t0 = Instant::now();
-                    let texels = horizon.warm(&heights, || *stop.borrow());
+                    let texels = horizon.warm(|| *stop.borrow());
                     tracing::info!(
                         texels,
                         seconds = t0.elapsed().as_secs_f64(),

@@ -104,8 +104,22 @@ camera_position_m = {cam:?}
         )
     }
 
+    /// The same scene with `body` as its extra `[body]` text.
+    pub fn toml_with_body(&self, body: &str) -> String {
+        SceneSpec { body, ..*self }.toml()
+    }
+
     pub fn config(&self) -> Config {
         config::parse(&self.toml(), "<test>").unwrap_or_else(|e| panic!("{e}"))
+    }
+}
+
+/// The key and value a scene text is refused with (`ConfigError::Invalid`); panics when it
+/// parses, or fails otherwise. `file` places its relative map paths.
+pub fn refusal(text: &str, file: &str) -> (String, String) {
+    match config::parse(text, file) {
+        Err(config::ConfigError::Invalid { key, value, .. }) => (key, value),
+        other => panic!("expected a refused key: {:?}", other.map(|_| ())),
     }
 }
 

@@ -307,8 +307,14 @@ impl Map {
         let x0 = crate::geometry::floor_i64(x);
         let tx = x - x0 as f64;
         let (c0, c1) = if self.wraps {
-            let c0 = (x0 as isize).rem_euclid(self.width as isize) as usize;
-            (c0, (c0 + 1) % self.width)
+            // `x` is in [0, w) but for rounding at the seam; integer remainders (divisions)
+            // showed in profiles, so they are kept for that case.
+            let c0 = if (0..self.width as i64).contains(&x0) {
+                x0 as usize
+            } else {
+                (x0 as isize).rem_euclid(self.width as isize) as usize
+            };
+            (c0, if c0 + 1 == self.width { 0 } else { c0 + 1 })
         } else {
             let c0 = (x0.max(0) as usize).min(self.width - 1);
             (c0, (c0 + 1).min(self.width - 1))

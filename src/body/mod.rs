@@ -407,7 +407,8 @@ impl Relief {
     /// [`Relief::occluded`]).
     #[inline]
     pub fn at(&self, up: DVec3, horizon: bool) -> ReliefSample {
-        let (lon, lat) = crate::geometry::lon_lat(up);
+        debug_assert!((up.length_squared() - 1.0).abs() < 1e-9);
+        let (lon, lat) = crate::geometry::lon_lat_unit(up);
         let Some(taps) = self.slope_east.taps(lon, lat) else {
             return ReliefSample {
                 height_m: 0.0,

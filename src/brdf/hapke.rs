@@ -42,16 +42,23 @@ pub struct HapkeParams {
 }
 
 /// The Hapke BRDF: `w` and the other parameters, with what depends on them alone computed
-/// once ([`Hapke::new`]).
+/// once ([`Hapke::new`], [`Hapke::set_w`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hapke {
-    /// Single-scattering albedo (may be changed: nothing derived depends on it).
-    pub w: f64,
+    /// Single-scattering albedo.
+    w: f64,
+    /// `r0 = (1 - sqrt(1 - w)) / (1 + sqrt(1 - w))` of the H function (Hapke 2002, Eq. 13).
+    r0: f64,
     p: HapkeParams,
-    /// The porosity factor K, tan(theta) and chi(theta).
+    /// The porosity factor K and 1/K.
     k: f64,
+    inv_k: f64,
+    /// tan(theta), chi(theta), and the exponents' factors of Hapke (1984)'s `E1`, `E2`:
+    /// `2 / (pi tan theta)` and `1 / (pi tan^2 theta)`.
     tan_t: f64,
     chi: f64,
+    e1_per_cot: f64,
+    e2_per_cot2: f64,
 }
 
 impl Hapke {
@@ -59,13 +66,31 @@ impl Hapke {
         let x = 1.209 * p.filling_factor.powf(2.0 / 3.0);
         let k = if x < 1e-12 { 1.0 } else { -(1.0 - x).ln() / x };
         let tan_t = p.theta_rad.tan();
-        Hapke {
+        let mut h = Hapke {
             w,
+            r0: 0.0,
             p,
             k,
+            inv_k: 1.0 / k,
             tan_t,
             chi: 1.0 / (1.0 + PI * tan_t * tan_t).sqrt(),
-        }
+            e1_per_cot: 2.0 * FRAC_1_PI / tan_t,
+            e2_per_cot2: FRAC_1_PI / (tan_t * tan_t),
+        };
+        h.set_w(w);
+        h
+    }
+
+    /// The single-scattering albedo.
+    pub fn w(&self) -> f64 {
+        self.w
+    }
+
+    /// Changes the single-scattering albedo (an albedo map's value, per quadrangle).
+    pub fn set_w(&mut self, w: f64) {
+        let gamma = (1.0 - w).max(0.0).sqrt();
+        self.w = w;
+        self.r0 = (1.0 - gamma) / (1.0 + gamma);
     }
 
     /// The porosity factor `K` (Hapke 2008, Eq. 14), 1 at zero filling factor.
@@ -74,25 +99,20 @@ impl Hapke {
     }
 
     /// `f_r` [1/sr] for cosines `mu0`, `mu` (both > 0) and phase angle cosine `cos_g`.
+    ///
+    /// Written for few divisions (they dominated the profile): reciprocals are shared where
+    /// one serves several quotients, and the sums of quotients are put over one denominator.
     #[inline]
     pub fn eval(&self, mu0: f64, mu: f64, cos_g: f64) -> f64 {
         if mu0 <= 0.0 || mu <= 0.0 {
             return 0.0;
         }
         let cos_g = cos_g.clamp(-1.0, 1.0);
-        let sin_i = (1.0 - mu0 * mu0).max(0.0).sqrt();
-        let sin_e = (1.0 - mu * mu).max(0.0).sqrt();
-        // Azimuth between the planes of incidence and emission (0 when either is normal).
-        let cos_psi = if sin_i * sin_e > 1e-12 {
-            ((cos_g - mu0 * mu) / (sin_i * sin_e)).clamp(-1.0, 1.0)
-        } else {
-            1.0
-        };
-        let rough = Roughness::new(self, mu0, sin_i, mu, sin_e, cos_psi);
-        let k = self.k;
+        let rough = Roughness::new(self, mu0, mu, cos_g);
+        let (x, y) = (rough.mu0e * self.inv_k, rough.mue * self.inv_k);
         // tan(g/2) from cos g.
         let half = ((1.0 - cos_g) / (1.0 + cos_g).max(1e-300)).sqrt();
-        let b_s = self.p.b0_s / (1.0 + half / self.p.h_s);
+        let b_s = self.p.b0_s * self.p.h_s / (self.p.h_s + half);
         let b_c = if self.p.b0_c == 0.0 {
             0.0
         } else {
@@ -104,11 +124,16 @@ impl Hapke {
             };
             self.p.b0_c * (1.0 + t) / (2.0 * (1.0 + z) * (1.0 + z))
         };
-        let gamma = (1.0 - self.w).sqrt();
-        let r0 = (1.0 - gamma) / (1.0 + gamma);
-        let m = h2002_r0(self.w, r0, rough.mu0e / k) * h2002_r0(self.w, r0, rough.mue / k) - 1.0;
-        // One division for `... mu0e / (mu0e + mue) ... / mu0` (divisions dominated the profile).
-        k * self.w
+        // M = H(x) H(y) - 1 with the 2002 H functions, 1/x and 1/y from one reciprocal.
+        let (w, r0) = (self.w, self.r0);
+        let m = if x > 0.0 && y > 0.0 {
+            let inv_xy = 1.0 / (x * y);
+            1.0 / (h2002_den(w, r0, x, y * inv_xy) * h2002_den(w, r0, y, x * inv_xy)) - 1.0
+        } else {
+            h2002_r0(w, r0, x) * h2002_r0(w, r0, y) - 1.0
+        };
+        self.k
+            * self.w
             * 0.25
             * FRAC_1_PI
             * rough.mu0e
@@ -121,11 +146,11 @@ impl Hapke {
     /// The two-term Henyey-Greenstein phase function at phase angle `g` (`cos_g`).
     pub fn phase_function(&self, cos_g: f64) -> f64 {
         let (b, c) = (self.p.b, self.p.c);
-        let num = 1.0 - b * b;
         let pow_1_5 = |x: f64| x * x.sqrt();
-        let forward = num / pow_1_5(1.0 + 2.0 * b * cos_g + b * b);
-        let back = num / pow_1_5(1.0 - 2.0 * b * cos_g + b * b);
-        (1.0 - c) * forward + c * back
+        let forward = pow_1_5(1.0 + 2.0 * b * cos_g + b * b);
+        let back = pow_1_5(1.0 - 2.0 * b * cos_g + b * b);
+        // (1 - c) num / forward + c num / back, over one denominator.
+        (1.0 - b * b) * ((1.0 - c) * back + c * forward) / (forward * back)
     }
 }
 
@@ -143,7 +168,14 @@ fn h2002_r0(w: f64, r0: f64, x: f64) -> f64 {
     if x <= 0.0 {
         return 1.0;
     }
-    1.0 / (1.0 - w * x * (r0 + 0.5 * (1.0 - 2.0 * r0 * x) * ((1.0 + x) / x).ln()))
+    1.0 / h2002_den(w, r0, x, 1.0 / x)
+}
+
+/// The denominator of [`h2002_r0`] at `x > 0`, with `1/x` given:
+/// `1 - w x (r0 + (1 - 2 r0 x)/2 ln((1 + x)/x))`.
+#[inline(always)]
+fn h2002_den(w: f64, r0: f64, x: f64, inv_x: f64) -> f64 {
+    1.0 - w * x * (r0 + 0.5 * (1.0 - 2.0 * r0 * x) * (1.0 + inv_x).ln())
 }
 
 /// Hapke's (1984) macroscopic roughness: effective cosines and the shadowing function.
@@ -154,7 +186,11 @@ struct Roughness {
 }
 
 impl Roughness {
-    fn new(h: &Hapke, mu0: f64, sin_i: f64, mu: f64, sin_e: f64, cos_psi: f64) -> Roughness {
+    /// At cosines `mu0`, `mu` (both > 0) and phase angle cosine `cos_g`.
+    #[inline(always)]
+    fn new(h: &Hapke, mu0: f64, mu: f64, cos_g: f64) -> Roughness {
+        let sin_i = (1.0 - mu0 * mu0).max(0.0).sqrt();
+        let sin_e = (1.0 - mu * mu).max(0.0).sqrt();
         if h.p.theta_rad < 1e-9 {
             return Roughness {
                 mu0e: mu0,
@@ -162,39 +198,59 @@ impl Roughness {
                 s: 1.0,
             };
         }
+        // cot of the incidence and emission angles (infinite at normal incidence), from one
+        // reciprocal, and the cosine of the azimuth between the planes of incidence and
+        // emission (1 when either direction is the normal). The cosine keeps its own division:
+        // near psi = 0 the arc cosine below turns its last bit into ~1e-8 of the result.
+        let (cot_i, cot_e, cos_psi) = if sin_i * sin_e > 1e-12 {
+            let inv = 1.0 / (sin_i * sin_e);
+            (
+                mu0 * sin_e * inv,
+                mu * sin_i * inv,
+                ((cos_g - mu0 * mu) / (sin_i * sin_e)).clamp(-1.0, 1.0),
+            )
+        } else {
+            let cot = |cos: f64, sin: f64| if sin > 0.0 { cos / sin } else { f64::INFINITY };
+            (cot(mu0, sin_i), cot(mu, sin_e), 1.0)
+        };
         let (tan_t, chi) = (h.tan_t, h.chi);
-        // cot x of the incidence and emission angles (infinite at normal incidence).
-        let cot = |cos: f64, sin: f64| if sin > 0.0 { cos / sin } else { f64::INFINITY };
-        let (cot_i, cot_e) = (cot(mu0, sin_i), cot(mu, sin_e));
-        let e1 = |cot_x: f64| (-2.0 * FRAC_1_PI * cot_x / tan_t).exp();
-        let e2 = |cot_x: f64| (-FRAC_1_PI * cot_x * cot_x / (tan_t * tan_t)).exp();
+        // Hapke (1984)'s E1 = exp(-2/pi cot(theta) cot x), E2 = exp(-1/pi cot^2(theta) cot^2 x).
+        let e1 = |cot_x: f64| (-h.e1_per_cot * cot_x).exp();
+        let e2 = |cot_x: f64| (-h.e2_per_cot2 * cot_x * cot_x).exp();
         let (e1_i, e2_i, e1_e, e2_e) = (e1(cot_i), e2(cot_i), e1(cot_e), e2(cot_e));
-        // The effective cosines of each direction alone (eta).
-        let eta0 = chi * (mu0 + sin_i * tan_t * e2_i / (2.0 - e1_i));
-        let eta = chi * (mu + sin_e * tan_t * e2_e / (2.0 - e1_e));
-        // sin^2(psi/2) and tan(psi/2) from cos(psi); f = 0 at psi = pi.
+        // The effective cosines of each direction alone (eta), over one denominator.
+        let (two_i, two_e) = (2.0 - e1_i, 2.0 - e1_e);
+        let q = 1.0 / (two_i * two_e);
+        let eta0 = chi * (mu0 + sin_i * tan_t * e2_i * two_e * q);
+        let eta = chi * (mu + sin_e * tan_t * e2_e * two_i * q);
+        // sin^2(psi/2) and f = exp(-2 tan(psi/2)); f = 0 at psi = pi.
         let sin2_half = 0.5 * (1.0 - cos_psi);
         let f = if cos_psi <= -1.0 + 1e-15 {
             0.0
         } else {
-            (-2.0 * (sin2_half / (1.0 - sin2_half)).sqrt()).exp()
+            (-2.0 * ((1.0 - cos_psi) / (1.0 + cos_psi)).sqrt()).exp()
         };
         let frac = cos_psi.acos() * FRAC_1_PI;
-        let (mu0e, mue, shadow) = if cot_i >= cot_e {
+        // The shadowing S = mue mu0 chi / (eta eta0 (1 - f + f chi shadow)), with shadow
+        // `mu0 / eta0` (i <= e) or `mu / eta` (e <= i) multiplied through.
+        let (mu0e, mue, den) = if cot_i >= cot_e {
             // i <= e.
-            let d = 2.0 - e1_e - frac * e1_i;
-            let mu0e = chi * (mu0 + sin_i * tan_t * (cos_psi * e2_e + sin2_half * e2_i) / d);
-            let mue = chi * (mu + sin_e * tan_t * (e2_e - sin2_half * e2_i) / d);
-            (mu0e, mue, mu0 / eta0)
+            let inv_d = 1.0 / (2.0 - e1_e - frac * e1_i);
+            let mu0e = chi * (mu0 + sin_i * tan_t * (cos_psi * e2_e + sin2_half * e2_i) * inv_d);
+            let mue = chi * (mu + sin_e * tan_t * (e2_e - sin2_half * e2_i) * inv_d);
+            (mu0e, mue, eta * (eta0 * (1.0 - f) + f * chi * mu0))
         } else {
             // e <= i.
-            let d = 2.0 - e1_i - frac * e1_e;
-            let mu0e = chi * (mu0 + sin_i * tan_t * (e2_i - sin2_half * e2_e) / d);
-            let mue = chi * (mu + sin_e * tan_t * (cos_psi * e2_i + sin2_half * e2_e) / d);
-            (mu0e, mue, mu / eta)
+            let inv_d = 1.0 / (2.0 - e1_i - frac * e1_e);
+            let mu0e = chi * (mu0 + sin_i * tan_t * (e2_i - sin2_half * e2_e) * inv_d);
+            let mue = chi * (mu + sin_e * tan_t * (cos_psi * e2_i + sin2_half * e2_e) * inv_d);
+            (mu0e, mue, eta0 * (eta * (1.0 - f) + f * chi * mu))
         };
-        let s = mue * mu0 * chi / (eta * eta0 * (1.0 - f + f * chi * shadow));
-        Roughness { mu0e, mue, s }
+        Roughness {
+            mu0e,
+            mue,
+            s: mue * mu0 * chi / den,
+        }
     }
 }
 

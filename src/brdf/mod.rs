@@ -129,7 +129,7 @@ impl Brdf {
             Brdf::OrenNayar(b) => b.rho,
             Brdf::Specular(b) => b.rho,
             Brdf::Phong(b) => b.rho,
-            Brdf::Hapke(b) => b.w,
+            Brdf::Hapke(b) => b.w(),
         }
     }
 
@@ -143,7 +143,7 @@ impl Brdf {
             Brdf::OrenNayar(b) => b.rho = scale,
             Brdf::Specular(b) => b.rho = scale,
             Brdf::Phong(b) => b.rho = scale,
-            Brdf::Hapke(b) => b.w = scale,
+            Brdf::Hapke(b) => b.set_w(scale),
         }
         out
     }

@@ -68,6 +68,13 @@ pub fn lon_lat(v: DVec3) -> (f64, f64) {
     (v.y.atan2(v.x), (v.z / r).clamp(-1.0, 1.0).asin())
 }
 
+/// [`lon_lat`] of a unit vector, without normalising it (one square root and division
+/// fewer on the renderer's hottest path).
+#[inline(always)]
+pub fn lon_lat_unit(v: DVec3) -> (f64, f64) {
+    (v.y.atan2(v.x), v.z.clamp(-1.0, 1.0).asin())
+}
+
 /// `x.floor() as i64` for finite `x` of magnitude below 2^53, without a libm call (`floor` is
 /// not inlined on baseline x86-64 and showed in profiles).
 #[inline(always)]

@@ -416,6 +416,71 @@ fn http_reports_and_steers_the_daemon() {
     );
 }
 
+/// A scene loaded over HTTP with a horizon computed from its DEM (`horizon_azimuths`) gets
+/// the daemon's warm-up, as the scene it starts with does: `/status` shows the horizon's cache
+/// filling with no pose sent, up to every texel; then the scene renders.
+#[test]
+fn a_scene_loaded_over_http_has_its_dem_horizon_computed_in_the_background() {
+    let d = daemon(Mode::Lockstep);
+    let a = d.http_addr;
+    let status = || {
+        let (code, body) = http(a, "GET", "/status", b"");
+        assert_eq!(code, 200);
+        serde_json::from_slice::<serde_json::Value>(&body).unwrap()
+    };
+    assert!(
+        status()["dem_horizon"].is_null(),
+        "the default scene has none"
+    );
+
+    let dir = TempDir::new("http-horizon");
+    // A global 2-degree DEM: a ridge along the equator, heights in kilometres.
+    let (w, h) = (180u32, 90u32);
+    let km: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let lat = 89.0 - 2.0 * (i / w) as f32;
+            3.0 * (-(lat / 10.0).powi(2)).exp()
+        })
+        .collect();
+    write_tiff::<tiff::encoder::colortype::Gray32Float>(&dir.join("dem.tif"), w, h, &km);
+    let scene = small_daemon_config()
+        .replace(
+            "[camera]",
+            "dem_map = { path = \"dem.tif\", scale = 1000.0 }\nhorizon_azimuths = 8\n\n[camera]",
+        )
+        .replace(
+            "preset = \"default\"",
+            "preset = \"default\"\nself_shadowing = \"horizon_map\"",
+        );
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, scene).unwrap();
+    let put = format!(r#"{{"scene":{:?}}}"#, path.to_str().unwrap());
+    let (code, body) = http(a, "PUT", "/config", put.as_bytes());
+    assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
+
+    let t0 = Instant::now();
+    loop {
+        let s = status();
+        let hz = &s["dem_horizon"];
+        assert_eq!(hz["texels"].as_u64(), Some((w * h) as u64), "{s}");
+        if hz["computed_texels"] == hz["texels"] {
+            break;
+        }
+        assert!(
+            t0.elapsed() < WAIT,
+            "the horizon is not being computed: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(
+        status()["frames_presented"].as_u64(),
+        Some(0),
+        "no frame did the work"
+    );
+    let mut c = Client::connect(d.tcp_addr);
+    still_serves(&mut c, 1);
+}
+
 /// The dashboard renders and updates in a real browser (Debian's `chromium`, headless; `.ci/run`
 /// installs it): its polling loop ran more than once, it shows the latest frame's image and
 /// the status table.

@@ -116,6 +116,11 @@ impl DemHorizon {
         computed
     }
 
+    /// How many texels the DEM has (what [`DemHorizon::computed_texels`] reaches when warm).
+    pub fn texels(&self) -> usize {
+        self.heights.width * self.heights.height
+    }
+
     /// How many texels have been computed so far.
     pub fn computed_texels(&self) -> usize {
         self.chunks

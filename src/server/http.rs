@@ -56,6 +56,15 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         .unwrap_or_else(|e| e.into_inner())
         .as_ref()
         .map(|l| l.frame_id);
+    // How far the DEM horizon's cache is filled (frames over uncomputed texels pay for them).
+    let horizon = scene
+        .config
+        .scene
+        .body
+        .relief
+        .as_ref()
+        .and_then(|r| r.dem_horizon.as_ref())
+        .map(|h| json!({"computed_texels": h.computed_texels(), "texels": h.texels()}));
     axum::Json(json!({
         "fps": fps,
         "latency_ms": {"p50": p50, "p99": p99, "max": max},
@@ -72,6 +81,7 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         "runtime": s.runtime(),
         "presenter": s.presenter,
         "latest_frame_id": latest,
+        "dem_horizon": horizon,
     }))
     .into_response()
 }

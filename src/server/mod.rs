@@ -259,6 +259,8 @@ pub struct Shared {
     pub recorder: Option<record::Recorder>,
     next_conn: std::sync::atomic::AtomicU64,
     pub shutdown: watch::Receiver<bool>,
+    /// The cancel flag of the scene's DEM-horizon warm-up, while one runs.
+    horizon_warmup: Mutex<Option<Arc<std::sync::atomic::AtomicBool>>>,
 }
 
 impl Shared {
@@ -305,6 +307,10 @@ impl Shared {
         if let Some((state, maker)) = scene {
             r.scene = state.label.clone();
             r.preset = "custom".into();
+            if let Err(e) = self.warm_horizon(&state.config) {
+                // Frames still compute the horizons they need; only the head start is lost.
+                tracing::warn!(error = %e, "DEM horizon warm-up not started");
+            }
             *self.scene.lock().unwrap_or_else(|e| e.into_inner()) = state;
             self.intake.control(frames::Control::Scene(Box::new(maker)));
         }
@@ -315,6 +321,43 @@ impl Shared {
         }
         tracing::info!(runtime = ?*r, "run-time settings changed");
         Ok(r.clone())
+    }
+
+    /// Horizons computed from the DEM fill on demand, so the first frames over a region would
+    /// pay for them: when `config`'s body has such a horizon, a background thread computes it
+    /// all (the frames' renderer shares the cache and never computes a texel twice). A
+    /// warm-up still running for a previous scene is cancelled; shutdown stops it too.
+    fn warm_horizon(&self, config: &crate::config::Config) -> std::io::Result<()> {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let mut slot = self
+            .horizon_warmup
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        if let Some(previous) = slot.take() {
+            previous.store(true, Ordering::Relaxed);
+        }
+        let body = &config.scene.body;
+        let Some(horizon) = body.relief.as_ref().and_then(|r| r.dem_horizon.clone()) else {
+            return Ok(());
+        };
+        let cancel = Arc::new(AtomicBool::new(false));
+        let (stop, cancelled) = (self.shutdown.clone(), cancel.clone());
+        let body_name = body.name.clone();
+        std::thread::Builder::new()
+            .name("optistim-horizon".into())
+            .spawn(move || {
+                let t0 = Instant::now();
+                let texels = horizon.warm(|| *stop.borrow() || cancelled.load(Ordering::Relaxed));
+                tracing::info!(
+                    body = %body_name,
+                    texels,
+                    seconds = t0.elapsed().as_secs_f64(),
+                    cancelled = cancelled.load(Ordering::Relaxed),
+                    "DEM horizon computed"
+                );
+            })?;
+        *slot = Some(cancel);
+        Ok(())
     }
 
     /// Loads and checks a scene for the screen in use, and builds its pipeline.
@@ -471,32 +514,11 @@ impl Server {
             recorder,
             next_conn: std::sync::atomic::AtomicU64::new(1),
             shutdown: stop_rx.clone(),
+            horizon_warmup: Mutex::new(None),
         });
-        // Horizons computed from the DEM fill on demand: the first frames over a region would
-        // pay for them, so a background thread computes them all from the start (the frames'
-        // renderer shares the cache and never computes a texel twice).
-        if let Some(horizon) = options
-            .config
-            .scene
-            .body
-            .relief
-            .as_ref()
-            .and_then(|r| r.dem_horizon.clone())
-        {
-            let stop = stop_rx.clone();
-            std::thread::Builder::new()
-                .name("optistim-horizon".into())
-                .spawn(move || {
-                    let t0 = Instant::now();
-                    let texels = horizon.warm(|| *stop.borrow());
-                    tracing::info!(
-                        texels,
-                        seconds = t0.elapsed().as_secs_f64(),
-                        "DEM horizon computed"
-                    );
-                })
-                .map_err(|e| ServerError::Runtime(e.to_string()))?;
-        }
+        shared
+            .warm_horizon(&options.config)
+            .map_err(|e| ServerError::Runtime(e.to_string()))?;
         let frame_thread = FrameThread::new(maker, present, shared.clone());
         let frame_thread = std::thread::Builder::new()
             .name("optistim-frames".into())

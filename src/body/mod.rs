@@ -395,8 +395,8 @@ impl Relief {
         None
     }
 
-    /// The DEM over `up` (body frame): height, normal and, when `horizon` is asked and there
-    /// is a horizon map, the sine of the local horizon's elevation there. One
+    /// The DEM over the unit direction `up` (body frame): height, normal and, when `horizon` is
+    /// asked and there is a horizon map, the sine of the local horizon's elevation there. One
     /// longitude/latitude and, when the maps share a grid (the DEM's slopes always do; the
     /// shared lunar horizon map does), one bilinear tap set for every value.
     ///

@@ -88,7 +88,7 @@ impl Hapke {
 
     /// Changes the single-scattering albedo (an albedo map's value, per quadrangle).
     pub fn set_w(&mut self, w: f64) {
-        let gamma = (1.0 - w).max(0.0).sqrt();
+        let gamma = (1.0 - w).sqrt();
         self.w = w;
         self.r0 = (1.0 - gamma) / (1.0 + gamma);
     }
@@ -99,9 +99,8 @@ impl Hapke {
     }
 
     /// `f_r` [1/sr] for cosines `mu0`, `mu` (both > 0) and phase angle cosine `cos_g`.
-    ///
-    /// Written for few divisions (they dominated the profile): reciprocals are shared where
-    /// one serves several quotients, and the sums of quotients are put over one denominator.
+    /// Reciprocals are shared where one serves several quotients, and sums of quotients are
+    /// put over one denominator.
     #[inline]
     pub fn eval(&self, mu0: f64, mu: f64, cos_g: f64) -> f64 {
         if mu0 <= 0.0 || mu <= 0.0 {
@@ -189,8 +188,6 @@ impl Roughness {
     /// At cosines `mu0`, `mu` (both > 0) and phase angle cosine `cos_g`.
     #[inline(always)]
     fn new(h: &Hapke, mu0: f64, mu: f64, cos_g: f64) -> Roughness {
-        let sin_i = (1.0 - mu0 * mu0).max(0.0).sqrt();
-        let sin_e = (1.0 - mu * mu).max(0.0).sqrt();
         if h.p.theta_rad < 1e-9 {
             return Roughness {
                 mu0e: mu0,
@@ -198,6 +195,8 @@ impl Roughness {
                 s: 1.0,
             };
         }
+        let sin_i = (1.0 - mu0 * mu0).max(0.0).sqrt();
+        let sin_e = (1.0 - mu * mu).max(0.0).sqrt();
         // cot of the incidence and emission angles (infinite at normal incidence), from one
         // reciprocal, and the cosine of the azimuth between the planes of incidence and
         // emission (1 when either direction is the normal). The cosine keeps its own division:

@@ -97,11 +97,75 @@ pub struct Comparison {
     /// (camera gain, atmosphere, albedo level) taken from the photograph: what is left is the
     /// match of shape, shading and texture.
     pub ssim_at_matched_total: SsimTerms,
+    /// How the real DN follow the rendered ones, from the sorted values of the pixels lit in
+    /// both: `None` with too few usable quantiles.
+    pub quantile_response: Option<QuantileResponse>,
     /// Pixels at full scale in each image.
     pub saturated_real_px: usize,
     pub saturated_rendered_px: usize,
     /// Intersection over union of the two lit masks (real above the threshold, rendered lit).
     pub lit_iou: f64,
+}
+
+/// The real image's DN against the rendered image's, quantile by quantile over the pixels lit
+/// in both (sorted values, so misregistration and texture errors do not enter): `real = scale *
+/// rendered^exponent` fitted in logs to the 10th to 90th percentiles (quantiles at zero or at
+/// full scale left out), and the ratio real / rendered at three of them. A camera whose response
+/// is linear but whose gain differs from the model's gives an exponent of 1 and equal ratios; a
+/// gamma (a power law on the DN) gives its exponent and ratios that fall with brightness.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct QuantileResponse {
+    pub exponent: f64,
+    pub scale: f64,
+    pub ratio_p10: f64,
+    pub ratio_p50: f64,
+    pub ratio_p90: f64,
+}
+
+impl QuantileResponse {
+    /// From the foreground values of both images (same count), in any order.
+    pub fn fit(mut real: Vec<f64>, mut rendered: Vec<f64>, full_scale: f64) -> Option<Self> {
+        if real.len() != rendered.len() || real.len() < 100 {
+            return None;
+        }
+        real.sort_by(f64::total_cmp);
+        rendered.sort_by(f64::total_cmp);
+        let at = |q: f64| {
+            let i = ((real.len() - 1) as f64 * q).round() as usize;
+            (real[i], rendered[i])
+        };
+        let usable = |(r, y): (f64, f64)| r > 0.0 && y > 0.0 && r < full_scale && y < full_scale;
+        let points: Vec<(f64, f64)> = (10..=90)
+            .map(|p| at(p as f64 / 100.0))
+            .filter(|&p| usable(p))
+            .map(|(r, y)| (y.ln(), r.ln()))
+            .collect();
+        if points.len() < 10 {
+            return None;
+        }
+        let n = points.len() as f64;
+        let (mx, my) = points
+            .iter()
+            .fold((0.0, 0.0), |(a, b), &(x, y)| (a + x / n, b + y / n));
+        let (sxy, sxx) = points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
+            (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+        });
+        if sxx <= 0.0 {
+            return None;
+        }
+        let exponent = sxy / sxx;
+        let ratio = |q: f64| {
+            let (r, y) = at(q);
+            r / y
+        };
+        Some(QuantileResponse {
+            exponent,
+            scale: (my - exponent * mx).exp(),
+            ratio_p10: ratio(0.10),
+            ratio_p50: ratio(0.50),
+            ratio_p90: ratio(0.90),
+        })
+    }
 }
 
 /// Aligns `rendered` on `real` and compares them; `full_scale` is `L` [DN] (255 at 8 bit).
@@ -165,11 +229,15 @@ pub fn compare(
         .zip(&y.dn)
         .map(|(&a, &r)| a || r > 0.0)
         .collect();
-    let both = real_lit
+    // Lit in both images: the lit masks' intersection, and where the quantile response is
+    // fitted (the halo the rendering lacks, and its own 8-bit zeros, would pile up at the low
+    // quantiles).
+    let lit_in_both: Vec<bool> = real_lit
         .iter()
         .zip(&y.dn)
-        .filter(|&(&a, &r)| a && r > 0.0)
-        .count();
+        .map(|(&a, &r)| a && r > 0.0)
+        .collect();
+    let both = lit_in_both.iter().filter(|&&b| b).count();
     let foreground_px = fg.iter().filter(|&&f| f).count();
 
     let terms = |y: &Gray| {
@@ -195,6 +263,14 @@ pub fn compare(
             .collect(),
     );
     let saturated = |img: &Gray| img.dn.iter().filter(|&&v| v >= full_scale).count();
+    let on_both = |img: &Gray| -> Vec<f64> {
+        img.dn
+            .iter()
+            .zip(&lit_in_both)
+            .filter(|p| *p.1)
+            .map(|p| *p.0)
+            .collect()
+    };
     Ok(Comparison {
         shift_px: [shift.0, shift.1],
         ncc: best,
@@ -204,6 +280,7 @@ pub fn compare(
         ssim: terms(&y),
         total_dn_ratio,
         ssim_at_matched_total: terms(&matched),
+        quantile_response: QuantileResponse::fit(on_both(&x), on_both(&y), full_scale),
         saturated_real_px: saturated(real),
         saturated_rendered_px: saturated(rendered),
         lit_iou: both as f64 / foreground_px.max(1) as f64,
@@ -422,6 +499,35 @@ mod tests {
         assert!((c.total_dn_ratio - 2.0).abs() < 0.02, "{c:?}");
         // Matched in total, the gain error is gone.
         assert!(c.ssim_at_matched_total.luminance.mean > 0.999, "{c:?}");
+        // The quantiles see a gain: exponent 1, the same ratio at every brightness.
+        let q = c.quantile_response.unwrap();
+        assert!((q.exponent - 1.0).abs() < 0.02, "{q:?}");
+        for r in [q.ratio_p10, q.ratio_p50, q.ratio_p90] {
+            assert!((r - 2.0).abs() < 0.05, "{q:?}");
+        }
+    }
+
+    /// A gamma on the real image's DN shows as the quantile response's exponent, with ratios
+    /// that fall with brightness; shuffling the rendered pixels (a misregistration of the
+    /// texture) does not change it.
+    #[test]
+    fn the_quantile_response_sees_a_gamma() {
+        // The disk's pixels of a rendering and of a camera applying a gamma of 0.8 to them.
+        let rendered: Vec<f64> = moon(80.0, 60.0, 0.5)
+            .dn
+            .into_iter()
+            .filter(|&v| v > 0.0)
+            .collect();
+        let real: Vec<f64> = rendered
+            .iter()
+            .map(|v| (255.0 * (v / 255.0).powf(0.8)).round())
+            .collect();
+        let q = QuantileResponse::fit(real.clone(), rendered.clone(), 255.0).unwrap();
+        assert!((q.exponent - 0.8).abs() < 0.01, "{q:?}");
+        assert!(q.ratio_p10 > q.ratio_p90 * 1.05, "{q:?}");
+        let mut shuffled = rendered;
+        shuffled.reverse();
+        assert_eq!(QuantileResponse::fit(real, shuffled, 255.0), Some(q));
     }
 
     #[test]

@@ -27,6 +27,14 @@ fn the_rendered_bfs_photo_matches_the_real_one() {
     // That is, the photo asks for about 3.4 DN/e- at 12 bit where the model has 2.14.
     let implied = report.implied_adc_gain_dn_per_e.unwrap();
     assert!((3.2..3.6).contains(&implied), "{implied}");
+    // And the factor is a gain, not a gamma: over the disk the photo's DN quantiles follow the
+    // rendering's linearly (exponent 1.01), about 1.6 times them from the 10th percentile to
+    // the 90th. A camera gamma of 0.8 would give 0.8 and ratios falling with brightness.
+    let q = c.quantile_response.expect("quantiles");
+    assert!((0.97..1.05).contains(&q.exponent), "{q:?}");
+    for r in [q.ratio_p10, q.ratio_p50, q.ratio_p90] {
+        assert!((1.45..1.8).contains(&r), "{q:?}");
+    }
     let t = &c.ssim;
     assert!(t.structure.mean >= 0.93, "{c:?}");
     assert!(t.contrast.mean >= 0.87, "{c:?}");

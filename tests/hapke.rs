@@ -1,7 +1,8 @@
 //! The Hapke BRDF against an independent implementation: the `hapke` BSDF of the PyPI package
 //! `eradiate-mitsuba` 0.5.0 in double precision, at 480 geometries (incidence 0-89.5 deg,
 //! emission 0-89.5 deg, azimuth 0-180 deg) for four parameter sets (lunar-like, rough, smooth,
-//! bright), where the two models coincide: no coherent backscatter, no porosity (K = 1).
+//! bright), where the two models coincide: no coherent backscatter, no porosity (K = 1); and
+//! the porosity factor against the same implementation through Hapke's scaling of the cosines.
 //! `tests/data/hapke_eradiate.py` made `tests/data/hapke_eradiate.csv` (eradiate's BSDF value
 //! divided by cos(e), i.e. f_r [1/sr]).
 
@@ -57,6 +58,42 @@ fn hapke_matches_eradiate_to_1e_6_at_480_geometries() {
         brdf.eval(i.cos(), e.cos(), cos_phase(i, e, psi))
     });
     assert_eq!(n, 480);
+    assert!(worst < 1e-6, "{worst} at {at}");
+}
+
+/// The porosity factor K (Hapke 2008) against eradiate, which has none, through Hapke's own
+/// scaling: on a smooth surface without coherent backscatter the BRDF with porosity equals the
+/// one without at the cosines divided by K, at the same phase angle,
+/// `f_r,K(mu0, mu, g) = f_r,1(mu0/K, mu/K, g)` (both factors of K in `r_K = K r_1(mu0/K,
+/// mu/K, g)` cancel against `1/mu0`). `tests/data/hapke_porosity_eradiate.py` evaluated eradiate
+/// at those scaled geometries for filling factors 0.1, 0.41 and 0.6 (K 1.16 to 2.3), three
+/// parameter sets, incidence and emission 0-89 deg, azimuth 0-180 deg (669 geometries; those
+/// no azimuth can give the phase angle at the scaled cosines are left out), and wrote K from
+/// the filling factor as well.
+#[test]
+fn hapke_porosity_matches_eradiate_through_hapkes_scaling_at_669_geometries() {
+    let (n, worst, at) = against(include_str!("data/hapke_porosity_eradiate.csv"), |v| {
+        let [phi, k, w, b, c, b0, h, i, e, psi, _] = v[..] else {
+            panic!("{v:?}");
+        };
+        let brdf = Hapke::new(
+            w,
+            HapkeParams {
+                b,
+                c,
+                b0_c: 0.0,
+                h_c: 1.0,
+                b0_s: b0,
+                h_s: h,
+                theta_rad: 0.0,
+                filling_factor: phi,
+            },
+        );
+        assert!((brdf.porosity_factor() / k - 1.0).abs() < 1e-12, "{v:?}");
+        let (i, e, psi) = (i.to_radians(), e.to_radians(), psi.to_radians());
+        brdf.eval(i.cos(), e.cos(), cos_phase(i, e, psi))
+    });
+    assert_eq!(n, 669);
     assert!(worst < 1e-6, "{worst} at {at}");
 }
 

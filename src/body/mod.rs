@@ -145,8 +145,9 @@ pub struct Relief {
     slope_east: std::sync::Arc<maps::Map>,
     slope_north: std::sync::Arc<maps::Map>,
     radius_m: f64,
-    /// The highest point above `radius_m` [m].
+    /// The highest and lowest points above `radius_m` [m].
     top_m: f64,
+    bottom_m: f64,
     /// The steepest slope anywhere (tan of its angle).
     max_slope: f64,
     /// Ray-marching step [m]: a quarter texel in latitude.
@@ -232,6 +233,7 @@ impl Relief {
             .map(|(e, n)| (e * e + n * n).sqrt())
             .fold(0.0, f64::max);
         let top_m = heights_m.values.iter().fold(f32::MIN, |a, &v| a.max(v)) as f64;
+        let bottom_m = heights_m.values.iter().fold(f32::MAX, |a, &v| a.min(v)) as f64;
         let slope = |values| heights_m.with_values(values).map(std::sync::Arc::new);
         Ok(Relief {
             slope_east: slope(east)?,
@@ -239,6 +241,7 @@ impl Relief {
             heights_m: std::sync::Arc::new(heights_m),
             radius_m,
             top_m,
+            bottom_m,
             max_slope,
             step_m: 0.25 * radius_m * dlat,
             horizon_sin: None,
@@ -318,26 +321,35 @@ impl Relief {
     /// Whether the terrain hides direction `toward` (unit, body frame) from the surface point
     /// over the unit direction `up` (Eq. 33: the ray from the point meets the surface). Only
     /// rays that rise more slowly than the steepest slope are marched (a quarter texel a step,
-    /// until the ray is above the highest point); the others cannot be blocked.
+    /// until the ray is above the highest point); the others cannot be blocked. A direction
+    /// below the horizontal is left to the BRDF's cosine on an undisplaced surface, and
+    /// marched on a displaced one, whose points beyond their own limb or terminator (a peak
+    /// seen or lit over the horizon) may still see the camera or the Sun.
     pub fn occluded(&self, up: DVec3, toward: DVec3) -> bool {
         let rise = toward.dot(up);
-        if rise <= 0.0 {
+        if rise <= 0.0 && !self.displaces {
             return false; // below the horizontal: the BRDF's cosine is already <= 0
         }
         let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
-        if rise >= self.max_slope * horizontal {
+        if rise > 0.0 && rise >= self.max_slope * horizontal {
             return false;
         }
         let (lon, lat) = crate::geometry::lon_lat(up);
         let h0 = self.heights_m.sample(lon, lat).unwrap_or(0.0);
         let start = up * (self.radius_m + h0);
         let ceiling = self.radius_m + self.top_m;
+        // Below every point of the surface (a regional map's surroundings at the reference
+        // radius), a ray descending from a displaced point is inside the body.
+        let floor = self.radius_m + self.bottom_m.min(0.0);
         let mut t = self.step_m;
         loop {
             let q = start + toward * t;
             let r = q.length();
             if r > ceiling {
                 return false;
+            }
+            if r < floor {
+                return true;
             }
             let (lon, lat) = crate::geometry::lon_lat(q / r);
             if let Some(h) = self.heights_m.sample(lon, lat)
@@ -491,6 +503,17 @@ impl Relief {
     /// Whether the DEM displaces the surface (else it only tilts the normals).
     pub fn displaces(&self) -> bool {
         self.displaces
+    }
+
+    /// The radius of a sphere the displaced surface contains [m] (the reference radius without
+    /// displacement; a regional map's surroundings are at the reference radius).
+    pub fn lowest_radius_m(&self) -> f64 {
+        self.radius_m
+            + if self.displaces {
+                self.bottom_m.min(0.0)
+            } else {
+                0.0
+            }
     }
 
     /// The radius of a sphere containing the displaced surface [m] (the reference radius

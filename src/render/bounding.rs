@@ -11,7 +11,9 @@
 //! black. The result is intersected with the lit longitudes and padded by a margin.
 //!
 //! All of it happens in the grid's space ([`super::view::Grid`]): the CSF for a sphere, the
-//! parameter space for an ellipsoid, where the ellipsoid is the unit sphere.
+//! parameter space for an ellipsoid, where the ellipsoid is the unit sphere. A displacing DEM's
+//! surface lies between two spheres, of its lowest and highest points: the caps are the inner
+//! sphere's, and the lines of sight are followed from the outer sphere to the inner one.
 
 use super::view::View;
 use crate::geometry::{lon_lat, wrap_pi};
@@ -35,12 +37,16 @@ impl Bounds {
 /// Limits of the region the camera can see, or `None` for a black frame.
 pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
     let g = &view.grid;
-    let r = g.radius;
+    // A displacing DEM's surface lies between the spheres of its lowest and highest points:
+    // it is seen and lit within the caps of the inner one (every limb and terminator point of
+    // the surface is, being a tangent point of the sphere of its own radius), and a line of
+    // sight meets it between the two.
+    let (r, r_min) = (g.radius, g.radius_min);
     let d = g.cam.length();
     let c_hat = g.cam / d;
     let alpha = g.phase_rad;
-    let beta = (r / d).clamp(-1.0, 1.0).acos(); // visible cap half-angle
-    let beta_sun = (r / g.sun.length()).clamp(-1.0, 1.0).acos(); // lit cap half-angle
+    let beta = (r_min / d).clamp(-1.0, 1.0).acos(); // visible cap half-angle
+    let beta_sun = (r_min / g.sun.length()).clamp(-1.0, 1.0).acos(); // lit cap half-angle
     let (e1, e2) = (DVec3::Z, c_hat.cross(DVec3::Z).normalize());
     let csf_from_camera = view.camera_from_csf.transpose();
     let (w, h) = (
@@ -65,15 +71,23 @@ pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
                 let (o, dir) = view.grid_ray((csf_from_camera * DVec3::new(x, y, 1.0)).normalize());
                 if let Some(t) = crate::geometry::ray_sphere(o, dir, r) {
                     acc.push(o + dir * t);
+                    if r_min < r {
+                        // Where it meets the inner sphere, or passes closest to the centre:
+                        // the surface point's direction lies between that and the entry's.
+                        let t_in = crate::geometry::ray_sphere(o, dir, r_min)
+                            .unwrap_or_else(|| -o.dot(dir));
+                        acc.push(o + dir * t_in);
+                    }
                 }
             }
         }
         // (b) The tangency circle, where it is inside the FOV.
         for k in 0..4 * n {
             let tau = std::f64::consts::TAU * k as f64 / (4 * n) as f64;
-            let p = r * (beta.cos() * c_hat + beta.sin() * (tau.cos() * e1 + tau.sin() * e2));
-            if view.in_fov(view.to_camera(view.csf_from_grid(p))) {
-                acc.push(p);
+            let u = beta.cos() * c_hat + beta.sin() * (tau.cos() * e1 + tau.sin() * e2);
+            let seen = |radius: f64| view.in_fov(view.to_camera(view.csf_from_grid(u * radius)));
+            if seen(r_min) || (r_min < r && seen(r)) {
+                acc.push(u);
             }
         }
         let cur = acc.bounds();

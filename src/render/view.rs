@@ -58,6 +58,10 @@ pub struct Grid {
     pub phase_rad: f64,
     /// Radius of the sphere bounding the surface in the grid's space (1 in parameter space).
     pub radius: f64,
+    /// Radius of a sphere the surface contains (`radius` but for a displacing DEM, whose
+    /// lowest point it is): its visible and lit caps bound the directions where the surface
+    /// can be seen and lit.
+    pub radius_min: f64,
     affine: Option<Affine>,
 }
 
@@ -116,6 +120,7 @@ impl<'a> View<'a> {
                     sun: par.csf_from_body() * sun_p,
                     phase_rad: par.phase_rad,
                     radius: 1.0,
+                    radius_min: 1.0,
                     affine: Some(Affine {
                         csf_from_grid,
                         grid_from_csf: csf_from_grid.inverse(),
@@ -125,13 +130,20 @@ impl<'a> View<'a> {
                     }),
                 }
             }
-            _ => Grid {
-                cam: cam_csf,
-                sun: sun_csf,
-                phase_rad: csf.phase_rad,
-                radius: crate::body::rendered_radius_m(shape, relief),
-                affine: None,
-            },
+            _ => {
+                let radius = crate::body::rendered_radius_m(shape, relief);
+                Grid {
+                    cam: cam_csf,
+                    sun: sun_csf,
+                    phase_rad: csf.phase_rad,
+                    radius,
+                    radius_min: match relief {
+                        Some(r) if r.displaces() => r.lowest_radius_m().min(radius),
+                        _ => radius,
+                    },
+                    affine: None,
+                }
+            }
         };
         View {
             intrinsics,
@@ -190,32 +202,53 @@ impl<'a> View<'a> {
     /// Hides what the relief hides at the surface point `p` over CSF unit direction `dir`:
     /// `g.mu0` (the Sun) and `g.mu` (the camera) become 0 where the terrain blocks them
     /// (ray marching), or where they rise less than the horizon: the DEM's own in their
-    /// azimuth, or the horizon map's (`horizon_sin` from [`View::surface_point`]). Nothing
-    /// without self-shadowing.
+    /// azimuth, or the horizon map's (`horizon_sin` from [`View::surface_point`]).
+    ///
+    /// On a displaced surface a direction below the point's horizontal (far-side terrain
+    /// facing the camera behind the limb, a slope facing the Sun beyond the terminator, a
+    /// peak seen or lit over the horizon) is beyond what a horizon holds: it is ray-marched
+    /// whatever the mode, and towards the camera even without self-shadowing, since what
+    /// lies behind the limb is not seen.
     #[inline]
     pub fn shadow(&self, dir: DVec3, p: DVec3, horizon_sin: Option<f64>, g: &mut Local) {
         let Some(r) = self.relief else {
             return;
         };
-        match self.shadows {
-            SelfShadowing::Off => {}
-            SelfShadowing::RayMarching => self.hide(dir, p, g, |up, to| r.occluded(up, to)),
-            SelfShadowing::HorizonMap if r.dem_horizon.is_some() => {
-                self.hide(dir, p, g, |up, to| r.horizon_hides(up, to))
+        if self.shadows == SelfShadowing::RayMarching {
+            return self.hide(dir, p, g, |up, to| r.occluded(up, to));
+        }
+        // Below the horizontal: `(target - p) . dir <= 0`, `dir` being `p`'s direction.
+        let below = |target: DVec3| r.displaces() && (target - p).dot(dir) <= 0.0;
+        let shadows = self.shadows != SelfShadowing::Off;
+        let sun_below = shadows && g.mu0 > 0.0 && below(self.sun_csf);
+        let cam_below = g.mu > 0.0 && below(self.cam_csf);
+        if sun_below || cam_below {
+            let up = self.body_dir(dir);
+            let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
+            if sun_below && r.occluded(up, to(self.sun_csf)) {
+                g.mu0 = 0.0;
             }
-            SelfShadowing::HorizonMap => {
-                let top = r.horizon_sin_max();
-                let low = |mu: f64| mu > 0.0 && mu < top;
-                if (low(g.mu0) || low(g.mu))
-                    && let Some(h) = horizon_sin
-                {
-                    if g.mu0 < h {
-                        g.mu0 = 0.0;
-                    }
-                    if g.mu < h {
-                        g.mu = 0.0;
-                    }
-                }
+            if cam_below && r.occluded(up, to(self.cam_csf)) {
+                g.mu = 0.0;
+            }
+        }
+        if !shadows {
+            return;
+        }
+        if r.dem_horizon.is_some() {
+            // `horizon_hides` leaves directions below the horizontal alone.
+            return self.hide(dir, p, g, |up, to| r.horizon_hides(up, to));
+        }
+        let top = r.horizon_sin_max();
+        let low = |mu: f64| mu > 0.0 && mu < top;
+        if (low(g.mu0) || low(g.mu))
+            && let Some(h) = horizon_sin
+        {
+            if !sun_below && g.mu0 < h {
+                g.mu0 = 0.0;
+            }
+            if !cam_below && g.mu < h {
+                g.mu = 0.0;
             }
         }
     }

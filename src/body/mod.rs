@@ -413,7 +413,7 @@ impl Relief {
     /// shared lunar horizon map does), one bilinear tap set for every value.
     ///
     /// The horizon's elevation is measured from the local tangent plane, normal to the DEM's
-    /// normal (the paper's frame O): on `config/moon.toml` that reading catches 88 % of the
+    /// normal (the paper's frame O): on `config/moon.toml` that reading catches 89 % of the
     /// pixels ray marching shadows, the sphere's tangent plane 69 %. A direction whose cosine
     /// with the DEM normal is below the sine is hidden (the fast alternative to
     /// [`Relief::occluded`]).

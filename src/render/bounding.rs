@@ -81,7 +81,8 @@ pub fn bound(view: &View, tolerance_rad: f64) -> Option<Bounds> {
                 }
             }
         }
-        // (b) The tangency circle, where it is inside the FOV.
+        // (b) The tangency (limb) circle of the inner sphere, where it, or the outer sphere's
+        // point over it, is inside the FOV.
         for k in 0..4 * n {
             let tau = std::f64::consts::TAU * k as f64 / (4 * n) as f64;
             let u = beta.cos() * c_hat + beta.sin() * (tau.cos() * e1 + tau.sin() * e2);

@@ -35,25 +35,29 @@ fn cos_phase(i: f64, e: f64, az: f64) -> f64 {
     i.cos() * e.cos() + i.sin() * e.sin() * az.cos()
 }
 
+/// Our Hapke with eradiate's parameters `[b, c, B0, h]` (its opposition effect is shadow
+/// hiding; no coherent backscatter), roughness `theta_rad` and `filling_factor`.
+fn eradiates(w: f64, [b, c, b0, h]: [f64; 4], theta_rad: f64, filling_factor: f64) -> Hapke {
+    let params = HapkeParams {
+        b,
+        c,
+        b0_c: 0.0,
+        h_c: 1.0,
+        b0_s: b0,
+        h_s: h,
+        theta_rad,
+        filling_factor,
+    };
+    Hapke::new(w, params)
+}
+
 #[test]
 fn hapke_matches_eradiate_to_1e_6_at_480_geometries() {
     let (n, worst, at) = against(include_str!("data/hapke_eradiate.csv"), |v| {
         let [w, b, c, theta_deg, b0, h, i, e, psi, _] = v[..] else {
             panic!("{v:?}");
         };
-        let brdf = Hapke::new(
-            w,
-            HapkeParams {
-                b,
-                c,
-                b0_c: 0.0,
-                h_c: 1.0,
-                b0_s: b0,
-                h_s: h,
-                theta_rad: theta_deg.to_radians(),
-                filling_factor: 0.0,
-            },
-        );
+        let brdf = eradiates(w, [b, c, b0, h], theta_deg.to_radians(), 0.0);
         let (i, e, psi) = (i.to_radians(), e.to_radians(), psi.to_radians());
         brdf.eval(i.cos(), e.cos(), cos_phase(i, e, psi))
     });
@@ -76,19 +80,7 @@ fn hapke_porosity_matches_eradiate_through_hapkes_scaling_at_669_geometries() {
         let [phi, k, w, b, c, b0, h, i, e, psi, _] = v[..] else {
             panic!("{v:?}");
         };
-        let brdf = Hapke::new(
-            w,
-            HapkeParams {
-                b,
-                c,
-                b0_c: 0.0,
-                h_c: 1.0,
-                b0_s: b0,
-                h_s: h,
-                theta_rad: 0.0,
-                filling_factor: phi,
-            },
-        );
+        let brdf = eradiates(w, [b, c, b0, h], 0.0, phi);
         assert!((brdf.porosity_factor() / k - 1.0).abs() < 1e-12, "{v:?}");
         let (i, e, psi) = (i.to_radians(), e.to_radians(), psi.to_radians());
         brdf.eval(i.cos(), e.cos(), cos_phase(i, e, psi))

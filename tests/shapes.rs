@@ -173,21 +173,19 @@ fn ellipsoid_keys_are_checked() {
     }
 }
 
-/// The radii of the oblate spheroid (a, a, c) on a 720 x 360 grid, as a DEM displacing the
-/// sphere of `R_MOON` (the heights the config makes of a DEM of radii).
-fn spheroid_dem(a: f64, c: f64) -> optistim::body::Relief {
+/// A global DEM of `w` x `h` texels displacing the sphere of `R_MOON`, of heights
+/// `height_m(lon_deg, lat_deg)` at the texel centres.
+fn global_dem(w: usize, h: usize, height_m: impl Fn(f64, f64) -> f64) -> optistim::body::Relief {
     use optistim::body::maps::{Encoding, Map};
-    let (w, h) = (720usize, 360usize);
     let heights = (0..w * h)
         .map(|i| {
-            let lat = std::f64::consts::FRAC_PI_2
-                - ((i / w) as f64 + 0.5) * std::f64::consts::PI / h as f64;
-            let r = 1.0 / ((lat.cos() / a).powi(2) + (lat.sin() / c).powi(2)).sqrt();
-            r - R_MOON
+            let lon = -180.0 + ((i % w) as f64 + 0.5) * 360.0 / w as f64;
+            let lat = 90.0 - ((i / w) as f64 + 0.5) * 180.0 / h as f64;
+            height_m(lon, lat)
         })
         .collect();
     let map = Map::from_values(
-        std::path::Path::new("radii"),
+        std::path::Path::new("dem"),
         w,
         h,
         heights,
@@ -195,6 +193,15 @@ fn spheroid_dem(a: f64, c: f64) -> optistim::body::Relief {
     )
     .unwrap();
     optistim::body::Relief::new(map, R_MOON, true).unwrap()
+}
+
+/// The radii of the oblate spheroid (a, a, c) on a 720 x 360 grid, as a DEM displacing the
+/// sphere of `R_MOON` (the heights the config makes of a DEM of radii).
+fn spheroid_dem(a: f64, c: f64) -> optistim::body::Relief {
+    global_dem(720, 360, |_, lat_deg| {
+        let lat = lat_deg.to_radians();
+        1.0 / ((lat.cos() / a).powi(2) + (lat.sin() / c).powi(2)).sqrt() - R_MOON
+    })
 }
 
 /// The spheroid (a, a, c) analytic and as a DEM of radii, in `spec`'s scene.
@@ -308,7 +315,6 @@ fn an_absolute_radius_dem_at_close_range_is_bounded_by_its_lowest_point() {
 /// surface.
 #[test]
 fn terrain_behind_the_limb_stays_hidden_and_a_peak_over_it_is_seen() {
-    use optistim::body::maps::{Encoding, Map};
     use optistim::render::settings::SelfShadowing;
     let d = 3.0 * R_MOON;
     let spec = SceneSpec {
@@ -324,7 +330,6 @@ fn terrain_behind_the_limb_stays_hidden_and_a_peak_over_it_is_seen() {
         render: "points_per_pixel = 1.0",
         ..Default::default()
     };
-    let (w, h) = (1440usize, 720usize);
     let render = |bump_m: f64, shadows: SelfShadowing| {
         let bump = |lon0: f64, lat0: f64, top: f64| {
             move |lon: f64, lat: f64| {
@@ -333,23 +338,10 @@ fn terrain_behind_the_limb_stays_hidden_and_a_peak_over_it_is_seen() {
             }
         };
         let (far, limb) = (bump(-150.0, 0.0, 25e3), bump(-35.0, 60.0, bump_m));
-        let heights = (0..w * h)
-            .map(|i| {
-                let lon = -180.0 + ((i % w) as f64 + 0.5) * 0.25;
-                let lat = 90.0 - ((i / w) as f64 + 0.5) * 0.25;
-                far(lon, lat) + limb(lon, lat)
-            })
-            .collect();
-        let map = Map::from_values(
-            std::path::Path::new("bumps"),
-            w,
-            h,
-            heights,
-            &Encoding::default(),
-        )
-        .unwrap();
         let mut cfg = spec.config();
-        cfg.scene.body.relief = Some(optistim::body::Relief::new(map, R_MOON, true).unwrap());
+        cfg.scene.body.relief = Some(global_dem(1440, 720, |lon, lat| {
+            far(lon, lat) + limb(lon, lat)
+        }));
         cfg.settings.self_shadowing = shadows;
         cfg.settings.depth = true;
         let f = Renderer::new(0)

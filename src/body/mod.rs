@@ -508,23 +508,18 @@ impl Relief {
     /// The radius of a sphere the displaced surface contains [m] (the reference radius without
     /// displacement; a regional map's surroundings are at the reference radius).
     pub fn lowest_radius_m(&self) -> f64 {
-        self.radius_m
-            + if self.displaces {
-                self.bottom_m.min(0.0)
-            } else {
-                0.0
-            }
+        self.radius_m + self.displacing(self.bottom_m.min(0.0))
     }
 
     /// The radius of a sphere containing the displaced surface [m] (the reference radius
     /// without displacement).
     pub fn bounding_radius_m(&self) -> f64 {
-        self.radius_m
-            + if self.displaces {
-                self.top_m.max(0.0)
-            } else {
-                0.0
-            }
+        self.radius_m + self.displacing(self.top_m.max(0.0))
+    }
+
+    /// `height_m` where the DEM displaces the surface, else 0.
+    fn displacing(&self, height_m: f64) -> f64 {
+        if self.displaces { height_m } else { 0.0 }
     }
 }
 

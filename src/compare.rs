@@ -168,6 +168,11 @@ impl QuantileResponse {
     }
 }
 
+/// The values where `mask` is set, in order.
+fn masked<'a>(values: &'a [f64], mask: &'a [bool]) -> impl Iterator<Item = f64> + 'a {
+    values.iter().zip(mask).filter(|p| *p.1).map(|p| *p.0)
+}
+
 /// Aligns `rendered` on `real` and compares them; `full_scale` is `L` [DN] (255 at 8 bit).
 pub fn compare(
     real: &Gray,
@@ -242,18 +247,14 @@ pub fn compare(
 
     let terms = |y: &Gray| {
         let maps = ssim_maps(&x, y, full_scale);
-        let over_fg = |m: &[f64]| {
-            let v: Vec<f64> = m.iter().zip(&fg).filter(|p| *p.1).map(|p| *p.0).collect();
-            mean_std(&v)
-        };
+        let over_fg = |m: &[f64]| mean_std(&masked(m, &fg).collect::<Vec<_>>());
         SsimTerms {
             luminance: over_fg(&maps.luminance),
             contrast: over_fg(&maps.contrast),
             structure: over_fg(&maps.structure),
         }
     };
-    let sum_fg =
-        |img: &Gray| -> f64 { img.dn.iter().zip(&fg).filter(|p| *p.1).map(|p| *p.0).sum() };
+    let sum_fg = |img: &Gray| -> f64 { masked(&img.dn, &fg).sum() };
     let total_dn_ratio = sum_fg(&x) / sum_fg(&y);
     let matched = Gray::new(
         y.width,
@@ -263,14 +264,7 @@ pub fn compare(
             .collect(),
     );
     let saturated = |img: &Gray| img.dn.iter().filter(|&&v| v >= full_scale).count();
-    let on_both = |img: &Gray| -> Vec<f64> {
-        img.dn
-            .iter()
-            .zip(&lit_in_both)
-            .filter(|p| *p.1)
-            .map(|p| *p.0)
-            .collect()
-    };
+    let on_both = |img: &Gray| -> Vec<f64> { masked(&img.dn, &lit_in_both).collect() };
     Ok(Comparison {
         shift_px: [shift.0, shift.1],
         ncc: best,

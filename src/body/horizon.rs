@@ -61,13 +61,14 @@ pub struct DemHorizon {
 }
 
 impl DemHorizon {
-    /// An empty cache for the DEM `heights` [m above `radius_m`], `azimuths` bins (at least 4).
-    pub fn new(heights: Arc<Map>, radius_m: f64, azimuths: usize) -> DemHorizon {
-        let (lo, hi) = heights
-            .values
-            .iter()
-            .fold((f32::MAX, f32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-        let (bottom_m, top_m) = (lo as f64, hi as f64);
+    /// An empty cache for the DEM `heights` [m above `radius_m`], whose lowest and highest
+    /// values are `bottom_m` and `top_m`, in `azimuths` bins (at least 4).
+    pub fn new(
+        heights: Arc<Map>,
+        radius_m: f64,
+        (bottom_m, top_m): (f64, f64),
+        azimuths: usize,
+    ) -> DemHorizon {
         let far = ((radius_m + bottom_m) / (radius_m + top_m))
             .clamp(-1.0, 1.0)
             .acos();

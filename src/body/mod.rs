@@ -190,6 +190,29 @@ pub struct ReliefSample {
     pub horizon_sin: Option<f64>,
 }
 
+/// The DEM's own horizon at one surface point: see [`Relief::dem_horizon_at`].
+pub struct HorizonAt<'a> {
+    horizon: &'a horizon::DemHorizon,
+    taps: maps::Taps,
+    up: DVec3,
+}
+
+impl HorizonAt<'_> {
+    /// Whether direction `toward` (unit, body frame) rises less than the horizon in its
+    /// azimuth. Like ray marching, a direction below the horizontal is left to the BRDF's
+    /// cosines, and one rising more steeply than the steepest slope (here the steepest within
+    /// reach) cannot be hidden.
+    pub fn hides(&self, toward: DVec3) -> bool {
+        let rise = toward.dot(self.up);
+        if rise <= 0.0 || !self.horizon.may_hide(&self.taps, rise) {
+            return false;
+        }
+        let (east, north) = crate::geometry::east_north(self.up);
+        let azimuth = toward.dot(north).atan2(toward.dot(east));
+        rise < self.horizon.sin_at(&self.taps, azimuth)
+    }
+}
+
 impl Relief {
     /// Slopes of `heights_m` (a DEM in metres above a sphere of `radius_m`).
     /// With `displaces`, the surface is moved to `R + h` and the slopes are taken along arcs
@@ -232,8 +255,11 @@ impl Relief {
             .zip(&north)
             .map(|(e, n)| (e * e + n * n).sqrt())
             .fold(0.0, f64::max);
-        let top_m = heights_m.values.iter().fold(f32::MIN, |a, &v| a.max(v)) as f64;
-        let bottom_m = heights_m.values.iter().fold(f32::MAX, |a, &v| a.min(v)) as f64;
+        let (bottom, top) = heights_m
+            .values
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        let (bottom_m, top_m) = (bottom as f64, top as f64);
         let slope = |values| heights_m.with_values(values).map(std::sync::Arc::new);
         Ok(Relief {
             slope_east: slope(east)?,
@@ -275,7 +301,8 @@ impl Relief {
     /// The same relief with its horizon computed from the DEM in `azimuths` bins
     /// ([`horizon::DemHorizon`]), instead of a horizon map.
     pub fn with_dem_horizon(self, azimuths: usize) -> Relief {
-        let h = horizon::DemHorizon::new(self.heights_m.clone(), self.radius_m, azimuths);
+        let range = (self.bottom_m, self.top_m);
+        let h = horizon::DemHorizon::new(self.heights_m.clone(), self.radius_m, range, azimuths);
         Relief {
             dem_horizon: Some(std::sync::Arc::new(h)),
             ..self
@@ -288,28 +315,20 @@ impl Relief {
     }
 
     /// Whether the DEM's own horizon hides direction `toward` (unit, body frame) from the
-    /// surface point over the unit direction `up`: it rises less than the horizon in its
-    /// azimuth ([`horizon::DemHorizon`]). Like ray marching, a direction below the horizontal
-    /// is left to the BRDF's cosines, and one rising more steeply than the steepest slope (here
-    /// the steepest within reach) cannot be hidden; false without a DEM horizon.
+    /// surface point over the unit direction `up` ([`HorizonAt::hides`]); false without a DEM
+    /// horizon.
     pub fn horizon_hides(&self, up: DVec3, toward: DVec3) -> bool {
-        let Some(dh) = &self.dem_horizon else {
-            return false;
-        };
-        let rise = toward.dot(up);
-        if rise <= 0.0 {
-            return false;
-        }
+        self.dem_horizon_at(up).is_some_and(|h| h.hides(toward))
+    }
+
+    /// The DEM's own horizon ([`horizon::DemHorizon`]) at the surface point over the unit
+    /// direction `up`, looked up once for any number of directions; `None` without one or off
+    /// a regional DEM.
+    pub fn dem_horizon_at(&self, up: DVec3) -> Option<HorizonAt<'_>> {
+        let horizon = self.dem_horizon.as_deref()?;
         let (lon, lat) = crate::geometry::lon_lat(up);
-        let Some(taps) = self.heights_m.taps(lon, lat) else {
-            return false;
-        };
-        if !dh.may_hide(&taps, rise) {
-            return false;
-        }
-        let (east, north) = crate::geometry::east_north(up);
-        let azimuth = toward.dot(north).atan2(toward.dot(east));
-        rise < dh.sin_at(&taps, azimuth)
+        let taps = self.heights_m.taps(lon, lat)?;
+        Some(HorizonAt { horizon, taps, up })
     }
 
     /// The sine of the highest horizon in the map: directions rising more steeply than that
@@ -624,7 +643,7 @@ mod tests {
         for k in 1..200 {
             let x_m = k as f64 * cell_m / 4.0;
             let up = crate::geometry::unit_from_lon_lat(-x_m / MOON_R_M, 0.0);
-            let east = DVec3::Z.cross(up).normalize();
+            let (east, _) = crate::geometry::east_north(up);
             let sun = east * elevation.cos() + up * elevation.sin();
             if hidden(up, sun) {
                 end_m = x_m;
@@ -676,7 +695,7 @@ mod tests {
         let mut hidden = 0;
         for k in 0..400 {
             let up = crate::geometry::unit_from_lon_lat(-0.03 + k as f64 * 1.5e-4, 0.001);
-            let east = DVec3::Z.cross(up).normalize();
+            let (east, _) = crate::geometry::east_north(up);
             let sun = east * elevation.cos() + up * elevation.sin();
             let h = lazy.horizon_hides(up, sun);
             assert_eq!(h, warm.horizon_hides(up, sun));
@@ -694,7 +713,7 @@ mod tests {
         let relief = relief.with_dem_horizon(16);
         shadow_end(|up, sun| relief.horizon_hides(up, sun), cell_m);
         let up = crate::geometry::unit_from_lon_lat(-0.002, 0.0);
-        let east = DVec3::Z.cross(up).normalize();
+        let (east, _) = crate::geometry::east_north(up);
         let elevation = 3f64.to_radians();
         assert!(relief.horizon_hides(up, east * elevation.cos() + up * elevation.sin()));
         assert!(!relief.horizon_hides(up, -east * elevation.cos() + up * elevation.sin()));

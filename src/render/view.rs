@@ -214,8 +214,9 @@ impl<'a> View<'a> {
         let Some(r) = self.relief else {
             return;
         };
+        let occluded = |up, to| r.occluded(up, to);
         if self.shadows == SelfShadowing::RayMarching {
-            return self.hide(dir, p, g, |up, to| r.occluded(up, to));
+            return self.hide(dir, p, g, [true, true], occluded);
         }
         // Below the horizontal: `(target - p) . dir <= 0`, `dir` being `p`'s direction.
         let below = |target: DVec3| r.displaces() && (target - p).dot(dir) <= 0.0;
@@ -223,21 +224,19 @@ impl<'a> View<'a> {
         let sun_below = shadows && g.mu0 > 0.0 && below(self.sun_csf);
         let cam_below = g.mu > 0.0 && below(self.cam_csf);
         if sun_below || cam_below {
-            let up = self.body_dir(dir);
-            let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
-            if sun_below && r.occluded(up, to(self.sun_csf)) {
-                g.mu0 = 0.0;
-            }
-            if cam_below && r.occluded(up, to(self.cam_csf)) {
-                g.mu = 0.0;
-            }
+            self.hide(dir, p, g, [sun_below, cam_below], occluded);
         }
         if !shadows {
             return;
         }
         if r.dem_horizon.is_some() {
-            // `horizon_hides` leaves directions below the horizontal alone.
-            return self.hide(dir, p, g, |up, to| r.horizon_hides(up, to));
+            // Looked up once for both directions; it leaves those below the horizontal alone.
+            if (g.mu0 > 0.0 || g.mu > 0.0)
+                && let Some(h) = r.dem_horizon_at(self.body_dir(dir))
+            {
+                self.hide(dir, p, g, [true, true], |_, to| h.hides(to));
+            }
+            return;
         }
         let top = r.horizon_sin_max();
         let low = |mu: f64| mu > 0.0 && mu < top;
@@ -253,16 +252,24 @@ impl<'a> View<'a> {
         }
     }
 
-    /// Zeroes `g.mu0` and `g.mu` where `hidden(up, toward)` (body frame: the point's
-    /// direction from the centre, the unit direction to the Sun or the camera) says so.
+    /// Zeroes `g.mu0` (when `sun`) and `g.mu` (when `cam`) where `hidden(up, toward)` (body
+    /// frame: the point's direction from the centre, the unit direction to the Sun or the
+    /// camera) says so.
     #[inline(always)]
-    fn hide(&self, dir: DVec3, p: DVec3, g: &mut Local, hidden: impl Fn(DVec3, DVec3) -> bool) {
+    fn hide(
+        &self,
+        dir: DVec3,
+        p: DVec3,
+        g: &mut Local,
+        [sun, cam]: [bool; 2],
+        hidden: impl Fn(DVec3, DVec3) -> bool,
+    ) {
         let up = self.body_dir(dir);
         let to = |target: DVec3| self.csf.body_from_csf * (target - p).normalize();
-        if g.mu0 > 0.0 && hidden(up, to(self.sun_csf)) {
+        if sun && g.mu0 > 0.0 && hidden(up, to(self.sun_csf)) {
             g.mu0 = 0.0;
         }
-        if g.mu > 0.0 && hidden(up, to(self.cam_csf)) {
+        if cam && g.mu > 0.0 && hidden(up, to(self.cam_csf)) {
             g.mu = 0.0;
         }
     }

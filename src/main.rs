@@ -25,6 +25,16 @@ enum Command {
         /// Output folder.
         #[arg(long, default_value = "out")]
         out: PathBuf,
+        /// Render the converged reference instead (per-pixel ray casting with adaptive
+        /// cubature over each pixel's footprint; slow); also writes error.fits.
+        #[arg(long)]
+        reference: bool,
+        /// The reference's relative tolerance per pixel.
+        #[arg(long, default_value_t = 1e-6)]
+        tolerance: f64,
+        /// The reference's deepest subdivision (halvings of a pixel's side).
+        #[arg(long, default_value_t = 10)]
+        max_depth: u32,
     },
     /// Render a scene as its camera saves it and compare it with a real photograph: NCC
     /// alignment, SSIM luminance / contrast / structure over the foreground, total DN ratio.
@@ -158,9 +168,25 @@ enum Command {
 
 fn run() -> anyhow::Result<()> {
     match Cli::parse().command {
-        Command::Render { scene, out } => {
+        Command::Render {
+            scene,
+            out,
+            reference,
+            tolerance,
+            max_depth,
+        } => {
             let cfg = config::load(&scene)?;
-            let summary = app::render::run(&cfg, &scene.display().to_string(), &out)?;
+            let method = if reference {
+                app::render::Method::Reference(optistim::raycast::reference::ReferenceSettings {
+                    tolerance,
+                    max_depth,
+                    threads: cfg.settings.threads,
+                    ..Default::default()
+                })
+            } else {
+                app::render::Method::Quadrangle
+            };
+            let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
             println!("{}", serde_json::to_string(&summary)?);
         }
         Command::Compare {

@@ -108,7 +108,13 @@ fn written_files_keep_the_orientation() {
     // stored bottom-up, ROWORDER) gives the same top-down image back.
     let cfg = config([0.0, 0.0, 1.0]);
     let dir = std::env::temp_dir().join(format!("optistim-conv-{}", std::process::id()));
-    optistim::app::render::run(&cfg, "conventions", &dir).unwrap();
+    optistim::app::render::run(
+        &cfg,
+        "conventions",
+        &dir,
+        optistim::app::render::Method::Quadrangle,
+    )
+    .unwrap();
     let decoder = png::Decoder::new(std::io::BufReader::new(
         std::fs::File::open(dir.join("image.png")).unwrap(),
     ));

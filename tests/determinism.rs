@@ -17,7 +17,13 @@ fn outputs(threads: u32, tag: &str) -> Vec<(String, Vec<u8>)> {
     .config();
     assert_eq!(cfg.settings.threads, threads as usize);
     let dir = std::env::temp_dir().join(format!("optistim-det-{tag}-{}", std::process::id()));
-    optistim::app::render::run(&cfg, "determinism", &dir).unwrap();
+    optistim::app::render::run(
+        &cfg,
+        "determinism",
+        &dir,
+        optistim::app::render::Method::Quadrangle,
+    )
+    .unwrap();
     let mut files = Vec::new();
     for name in ["power.fits", "signal.fits", "depth.fits", "image.png"] {
         files.push((name.to_string(), std::fs::read(dir.join(name)).unwrap()));

@@ -4,6 +4,7 @@
 use super::AppError;
 use crate::config::Config;
 use crate::io::fits::{self, Bitpix, Card, Value};
+use crate::raycast::reference::{self, ReferenceReport, ReferenceSettings};
 use crate::render::{FrameStats, Renderer};
 use crate::stimulator::calibration::ClipCounts;
 use crate::stimulator::camera::SimulatedCamera;
@@ -26,6 +27,9 @@ pub struct RenderSummary {
     pub saturated_px: usize,
     /// Time per stage [ms]: the renderer's steps, then the detector and the file writes.
     pub timings_ms: serde_json::Value,
+    /// With `--reference`: how converged the reference is (its own error estimate).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<ReferenceReport>,
     /// With a `[stimulator]` section: the screen frame's report.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stimulator: Option<StimulatorSummary>,
@@ -44,16 +48,42 @@ pub struct StimulatorSummary {
     pub timings_ms: StimulatorTimings,
 }
 
+/// Which renderer makes the frame.
+#[derive(Clone, Copy, Debug)]
+pub enum Method {
+    /// The quadrangle pipeline with the scene's `[render]` settings.
+    Quadrangle,
+    /// The converged reference ([`crate::raycast::reference`]); it also writes `error.fits`,
+    /// each pixel's estimated error [W].
+    Reference(ReferenceSettings),
+}
+
 /// Renders the scene of `config` and writes the outputs into `out`.
-pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummary, AppError> {
+pub fn run(
+    config: &Config,
+    scene_name: &str,
+    out: &Path,
+    method: Method,
+) -> Result<RenderSummary, AppError> {
     std::fs::create_dir_all(out).map_err(|source| AppError::OutDir {
         path: out.display().to_string(),
         source,
     })?;
-    let mut settings = config.settings.clone();
-    settings.depth = true;
-    let mut renderer = Renderer::new(settings.threads)?;
-    let frame = renderer.render(&config.scene, &config.pose, &settings)?;
+    let (frame, reference) = match method {
+        Method::Quadrangle => {
+            let mut settings = config.settings.clone();
+            settings.depth = true;
+            let mut renderer = Renderer::new(settings.threads)?;
+            (
+                renderer.render(&config.scene, &config.pose, &settings)?,
+                None,
+            )
+        }
+        Method::Reference(s) => {
+            let r = reference::render(&config.scene, &config.pose, &s)?;
+            (r.frame, Some((r.error_pl, r.report)))
+        }
+    };
     let det = &config.scene.camera.detector;
 
     let t0 = Instant::now();
@@ -98,6 +128,17 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
         &with("m", "range to the surface, NaN = empty"),
     )?;
     crate::io::write_png_gray(&out.join("image.png"), w, h, &dn, det.saved_bits)?;
+    if let Some((error_pl, _)) = &reference {
+        let error_w: Vec<f64> = error_pl.iter().map(|x| x * radiance).collect();
+        fits::write(
+            &out.join("error.fits"),
+            w,
+            h,
+            &error_w,
+            Bitpix::F64,
+            &with("W", "reference: estimated error per pixel"),
+        )?;
+    }
     let mut write_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let stimulator = match &config.stimulator {
@@ -148,6 +189,7 @@ pub fn run(config: &Config, scene_name: &str, out: &Path) -> Result<RenderSummar
         covered_px: frame.stats.covered_px,
         saturated_px: dn.iter().filter(|&&x| x >= max_dn).count(),
         timings_ms: timings,
+        reference: reference.map(|r| r.1),
         stimulator,
     })
 }

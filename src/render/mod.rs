@@ -171,7 +171,7 @@ impl Renderer {
     }
 }
 
-fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
+pub(crate) fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
     let bad = |field, value: String| Err(RenderError::BadPose { field, value });
     if !pose.camera_position_m.is_finite() {
         return bad("camera_position_m", format!("{:?}", pose.camera_position_m));

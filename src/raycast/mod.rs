@@ -1,0 +1,313 @@
+//! Per-pixel ray casting, the sibling of the quadrangle pipeline ([`crate::render`]): what a
+//! line of sight through the camera meets, and the light it brings back. It serves the
+//! converged reference of any scene ([`reference`]), which the sweep, the stability suite and
+//! the tests measure the quadrangle pipeline against.
+//!
+//! It shares no integration, bounding or gridding code with the pipeline: only the body's
+//! shape (ray intersections), its maps (albedo, DEM normals) and the BRDFs. Shadows cast by a
+//! DEM are marched here with their own code ([`Terrain`]), finer than the pipeline's.
+//!
+//! The quantity cast along a ray is the integrand of Eq. 11 written per unit solid angle of
+//! the line of sight: with `mu dA / d_cam^2 = dOmega`,
+//!
+//! ```text
+//! d(P/L) = A_sun A_cam f_r mu0 cos(eps) / d_sun^2 dOmega,     dOmega = cos^3(eps) dx dy
+//! ```
+//!
+//! where `(x, y, 1)` is the undistorted line of sight in the camera frame and `eps` its angle
+//! from the boresight. A pixel's `(P/L)` is that integrated over the pixel's footprint: in pixel
+//! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
+
+pub mod reference;
+
+use crate::body::{Relief, Shape, maps::Map};
+use crate::brdf::Local;
+use crate::camera::Intrinsics;
+use crate::scene::{Pose, Scene};
+use glam::{DMat3, DVec3};
+use std::sync::Arc;
+
+/// One scene seen from one pose, ready to cast rays.
+pub struct Tracer<'a> {
+    scene: &'a Scene,
+    intrinsics: &'a Intrinsics,
+    camera_m: DVec3,
+    sun_m: DVec3,
+    body_from_camera: DMat3,
+    /// `A_sun A_cam / (f_u f_v)` [m^4 / px^2]: turns the integrand into `(P/L)` per px^2.
+    k_px: f64,
+    /// The shape's surface is moved by the DEM (rays meet the displaced surface).
+    displaced: Option<&'a Relief>,
+    terrain: Option<Terrain>,
+    /// The silhouette test's space: the body frame scaled by `scale` (the unit sphere's for an
+    /// undisplaced ellipsoid, `x' = A^-1 x`, else the body frame) where directions turn by at
+    /// most `kappa` times their angle in the body frame; there, the unit direction from the
+    /// camera to the centre and the angular radii [rad] of the spheres that contain the
+    /// surface and that the surface contains.
+    scale: DVec3,
+    kappa: f64,
+    to_centre: DVec3,
+    outer_rad: f64,
+    inner_rad: f64,
+}
+
+/// What one line of sight meets.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Hit {
+    /// `(P/L)` per px^2 of image area at this point of the image plane [sr m^2 / px^2].
+    pub pl_per_px2: f64,
+    /// Range to the surface [m], NaN when the ray misses.
+    pub range_m: f64,
+}
+
+/// Where an image-plane region lies against the body's silhouette.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Coverage {
+    /// Every line of sight misses the body's bounding sphere.
+    Empty,
+    /// Every line of sight meets the sphere the surface contains.
+    Inside,
+    /// The region may straddle the limb.
+    Edge,
+}
+
+impl<'a> Tracer<'a> {
+    pub fn new(scene: &'a Scene, pose: &Pose) -> Tracer<'a> {
+        let intr = &scene.camera.intrinsics;
+        let (fu, fv) = intr.focal_px();
+        let relief = scene.body.relief.as_ref();
+        let displaced = relief.filter(|r| r.displaces());
+        let outer = crate::body::rendered_radius_m(&scene.body.shape, relief);
+        let inner = match displaced {
+            Some(r) => r.lowest_radius_m().min(scene.body.shape.inner_radius_m()),
+            None => scene.body.shape.inner_radius_m(),
+        };
+        let (scale, kappa, outer, inner) = match (&scene.body.shape, displaced) {
+            (Shape::Ellipsoid(e), None) => (
+                DVec3::ONE / e.semi_axes_m,
+                e.max_axis_m() / e.min_axis_m(),
+                1.0,
+                1.0,
+            ),
+            _ => (DVec3::ONE, 1.0, outer, inner),
+        };
+        let camera = pose.camera_position_m * scale;
+        let d = camera.length();
+        Tracer {
+            scene,
+            intrinsics: intr,
+            camera_m: pose.camera_position_m,
+            sun_m: pose.sun_position_m,
+            body_from_camera: DMat3::from_quat(pose.body_from_camera),
+            k_px: scene.sun.area_m2() * intr.aperture_area_m2() / (fu * fv),
+            displaced,
+            terrain: relief.map(Terrain::new),
+            scale,
+            kappa,
+            to_centre: -camera / d,
+            outer_rad: if d > outer {
+                (outer / d).asin()
+            } else {
+                std::f64::consts::PI
+            },
+            inner_rad: (inner / d).min(1.0).asin(),
+        }
+    }
+
+    /// Unit line of sight (body frame) through pixel position `(u, v)` and the factor
+    /// `cos^3(eps) / det J_Brown` that turns `du dv / (f_u f_v)` into its solid angle.
+    #[inline]
+    fn line_of_sight(&self, u: f64, v: f64) -> (DVec3, f64, f64) {
+        let (x, y) = self.intrinsics.unproject(u, v);
+        let ray = DVec3::new(x, y, 1.0);
+        let inv_len = 1.0 / ray.length();
+        let jac = self.intrinsics.distortion.jacobian_det(x, y);
+        let cos_eps = inv_len;
+        (
+            self.body_from_camera * (ray * inv_len),
+            cos_eps,
+            cos_eps * cos_eps * cos_eps / jac,
+        )
+    }
+
+    /// Where the square `[u0, u0 + side] x [v0, v0 + side]` of the image plane lies against the
+    /// body: from the cone around its centre's line of sight through its corners (widened by a
+    /// tenth for the curvature of distorted edges), in the silhouette test's space.
+    pub fn coverage(&self, u0: f64, v0: f64, side: f64) -> Coverage {
+        let (c, _, _) = self.line_of_sight(u0 + 0.5 * side, v0 + 0.5 * side);
+        let mut spread: f64 = 0.0;
+        for (du, dv) in [(0.0, 0.0), (side, 0.0), (0.0, side), (side, side)] {
+            let (d, _, _) = self.line_of_sight(u0 + du, v0 + dv);
+            spread = spread.max(angle(d, c));
+        }
+        let spread = self.kappa * (1.1 * spread + 1e-12);
+        let c = (c * self.scale).normalize();
+        let off = angle(c, self.to_centre);
+        if off - spread > self.outer_rad {
+            Coverage::Empty
+        } else if off + spread < self.inner_rad {
+            Coverage::Inside
+        } else {
+            Coverage::Edge
+        }
+    }
+
+    /// Whether [`Coverage::Edge`] cells lie close to the silhouette (a sphere, or an
+    /// undisplaced ellipsoid in its parameter space), rather than anywhere between the
+    /// spheres bounding a displaced DEM.
+    pub fn tight_silhouette(&self) -> bool {
+        self.displaced.is_none()
+    }
+
+    /// Casts the line of sight through pixel position `(u, v)`.
+    #[inline]
+    pub fn cast(&self, u: f64, v: f64) -> Hit {
+        let miss = Hit {
+            pl_per_px2: 0.0,
+            range_m: f64::NAN,
+        };
+        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
+        let body = &self.scene.body;
+        let t = match self.displaced {
+            Some(r) => r.intersect_displaced(self.camera_m, dir),
+            None => body.shape.intersect(self.camera_m, dir),
+        };
+        let Some(t) = t else { return miss };
+        let p = self.camera_m + dir * t;
+        let up = p.normalize();
+        let normal = match &body.relief {
+            Some(r) => r.at(up, false).normal,
+            None => surface_normal(&body.shape, p),
+        };
+        let to_sun = self.sun_m - p;
+        let d_sun2 = to_sun.length_squared();
+        let s = to_sun / d_sun2.sqrt();
+        let g = Local::new(normal, s, -dir);
+        let hit = |pl| Hit {
+            pl_per_px2: pl,
+            range_m: t,
+        };
+        if g.mu0 <= 0.0 || g.mu <= 0.0 {
+            return hit(0.0);
+        }
+        if let Some(terrain) = &self.terrain
+            && terrain.shadowed(up, s, self.displaced.is_some())
+        {
+            return hit(0.0);
+        }
+        let f_r = match &body.albedo_map {
+            Some(m) => body
+                .brdf
+                .with_scale(m.scale_at(up, body.brdf.scale()))
+                .eval(&g),
+            None => body.brdf.eval(&g),
+        };
+        hit(self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid)
+    }
+}
+
+/// The angle between two unit vectors [rad], accurate when it is tiny (where `acos` of the dot
+/// product is not: a cell 1/256 px wide of a far body spans 4e-8 rad).
+#[inline]
+fn angle(a: DVec3, b: DVec3) -> f64 {
+    a.cross(b).length().atan2(a.dot(b))
+}
+
+/// The outward normal of the undisplaced shape at its surface point `p` [m].
+fn surface_normal(shape: &Shape, p: DVec3) -> DVec3 {
+    match shape {
+        Shape::Sphere(_) => p.normalize(),
+        Shape::Ellipsoid(_) => shape.surface(p.normalize()).1,
+    }
+}
+
+/// The terrain of a DEM as shadows see it: the surface `r = R + h(lon, lat)` (bilinear
+/// heights), marched an eighth of a texel a step towards the Sun, independently of the
+/// pipeline's ray marching (which steps a quarter texel).
+struct Terrain {
+    heights: Arc<Map>,
+    radius_m: f64,
+    top_m: f64,
+    bottom_m: f64,
+    /// The steepest slope between neighbouring texels anywhere (tan of its angle): a ray
+    /// rising more steeply than this cannot be blocked.
+    max_slope: f64,
+    step_m: f64,
+}
+
+impl Terrain {
+    fn new(relief: &Relief) -> Terrain {
+        let map = relief.heights_m.clone();
+        let r0 = relief.reference_radius_m();
+        let (dlon, dlat) = map.spacing_rad();
+        let (w, h) = (map.width, map.height);
+        let v = |r: usize, c: usize| map.values[r * w + c] as f64;
+        let (mut top, mut bottom, mut max_slope) = (f64::MIN, f64::MAX, 0.0f64);
+        for r in 0..h {
+            let arc_e = r0 * map.row_lat(r).cos().abs().max(1e-9) * dlon;
+            for c in 0..w {
+                let here = v(r, c);
+                top = top.max(here);
+                bottom = bottom.min(here);
+                if c + 1 < w || map.wraps() {
+                    let east = v(r, (c + 1) % w);
+                    max_slope = max_slope.max((east - here).abs() / arc_e);
+                }
+                if r + 1 < h {
+                    max_slope = max_slope.max((v(r + 1, c) - here).abs() / (r0 * dlat));
+                }
+            }
+        }
+        Terrain {
+            step_m: 0.125 * r0 * dlat,
+            heights: map,
+            radius_m: r0,
+            top_m: top.max(0.0),
+            bottom_m: bottom.min(0.0),
+            // Both slopes at once (the gradient's length) bound any direction's.
+            max_slope: max_slope * std::f64::consts::SQRT_2,
+        }
+    }
+
+    fn height_at(&self, p: DVec3) -> Option<f64> {
+        let (lon, lat) = crate::geometry::lon_lat(p);
+        self.heights.sample(lon, lat)
+    }
+
+    /// Whether the terrain hides direction `toward` (unit) from the surface point over the
+    /// unit direction `up`. On a displaced surface the ray starts on it; on an undisplaced one
+    /// (the DEM tilts the normals only) it starts at the terrain's height there, as the DEM
+    /// says the ground lies.
+    fn shadowed(&self, up: DVec3, toward: DVec3, displaced: bool) -> bool {
+        let rise = toward.dot(up);
+        let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
+        if rise > 0.0 && rise >= self.max_slope * horizontal {
+            return false;
+        }
+        if rise <= 0.0 && !displaced {
+            return false; // the BRDF's cosine on the sphere already says so
+        }
+        let h0 = self.height_at(up).unwrap_or(0.0);
+        // A hair above the ground, so the start does not count as below it.
+        let start = up * (self.radius_m + h0 + 1e-6 * self.step_m);
+        let ceiling = self.radius_m + self.top_m;
+        let floor = self.radius_m + self.bottom_m;
+        let mut t = self.step_m;
+        loop {
+            let q = start + toward * t;
+            let r = q.length();
+            if r > ceiling {
+                return false;
+            }
+            if r < floor {
+                return true;
+            }
+            if let Some(h) = self.height_at(q / r)
+                && r < self.radius_m + h
+            {
+                return true;
+            }
+            t += self.step_m;
+        }
+    }
+}

@@ -17,6 +17,7 @@
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: view (the CSF, and the grid's space: the CSF, or an ellipsoid's parameter space), bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`raycast`] | per-pixel ray casting, the sibling of the quadrangle pipeline: what a line of sight meets and brings back (shapes, DEM with its own shadow marching, maps, BRDFs), and the converged reference of any scene by adaptive cubature over each pixel's footprint, with its own error estimate |
+//! | [`fidelity`] | a frame's error against the converged reference (total; median, p95, p99 per lit pixel; SSIM): what the sweep charts and budgets are written in |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
 //! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
 //! | [`pipeline`] | one pose's way to the screen: render -> signal -> stimulator -> simulated camera, timed per stage |
@@ -62,6 +63,7 @@ pub mod compare;
 pub mod config;
 pub mod detector;
 pub mod display;
+pub mod fidelity;
 pub mod geometry;
 pub mod io;
 pub mod pipeline;

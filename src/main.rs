@@ -36,6 +36,15 @@ enum Command {
         #[arg(long, default_value_t = 10)]
         max_depth: u32,
     },
+    /// The speed-accuracy front: a grid of scenes x settings, each timed and measured against
+    /// the scene's converged reference; writes sweep.csv, front.png and front.svg.
+    Sweep {
+        /// Sweep TOML (e.g. sweeps/issue15.toml).
+        sweep: PathBuf,
+        /// Output folder (references are cached in DIR/references).
+        #[arg(long, default_value = "out/sweep")]
+        out: PathBuf,
+    },
     /// Render a scene as its camera saves it and compare it with a real photograph: NCC
     /// alignment, SSIM luminance / contrast / structure over the foreground, total DN ratio.
     Compare {
@@ -188,6 +197,10 @@ fn run() -> anyhow::Result<()> {
             };
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
             println!("{}", serde_json::to_string(&summary)?);
+        }
+        Command::Sweep { sweep, out } => {
+            let report = app::sweep::run(&sweep, &out, |line| eprintln!("{line}"))?;
+            println!("{}", serde_json::to_string(&report)?);
         }
         Command::Compare {
             scene,

@@ -6,6 +6,7 @@ pub mod compare;
 pub mod render;
 pub mod replay;
 pub mod show;
+pub mod sweep;
 
 #[derive(Debug, thiserror::Error)]
 pub enum AppError {
@@ -25,6 +26,8 @@ pub enum AppError {
     Display(#[from] crate::display::DisplayError),
     #[error("compare: {0}")]
     Compare(String),
+    #[error("sweep: {0}")]
+    Sweep(String),
     #[error("replay: {0}")]
     Replay(String),
     #[error(transparent)]

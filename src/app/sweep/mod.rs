@@ -1,0 +1,466 @@
+//! `optistim sweep SWEEP.toml --out DIR`: the speed-accuracy front. A grid of scenes x
+//! settings; per setting the frame time (median of `repeats`, the settings interleaved so that
+//! a machine's drift falls on all of them alike) and the error against the scene's converged
+//! reference ([`crate::raycast::reference`]; total, median / p95 / p99 per lit pixel, SSIM:
+//! [`crate::fidelity::metrics`]). Writes `sweep.csv`, and `front.png` / `front.svg`
+//! ([`chart`]): time against each error, one column of panels per scene, the Pareto front
+//! marked, the peer renderers of a scene beside it.
+//!
+//! The sweep file (see `sweeps/issue15.toml`):
+//!
+//! ```toml
+//! repeats = 5                       # timed renders per setting
+//! [reference]                       # the reference's settings (optional)
+//! tolerance = 1e-6
+//! max_depth = 10
+//!
+//! [[scene]]
+//! name = "analytic"
+//! file = "../config/analytic.toml"  # relative to the sweep file
+//! trajectory = "../../shared/trajectories/nrho_2orbits.csv"   # optional: a pose of it,
+//! pose = "closest"                  # "closest" | "farthest" | a row index
+//! [scene.patch.camera]              # merged into the scene file's tables (optional)
+//! resolution_px = [256, 256]
+//! [[scene.peer]]                    # other renderers measured on this scene (optional)
+//! name = "Mitsuba 3 LLVM, 128 spp"
+//! time_s = 4.75
+//! median = 5.4e-5
+//! p99 = 1.8e-3
+//! total = 5.6e-6
+//!
+//! [[setting]]
+//! name = "default"
+//! render = { preset = "default" }   # merged into the scene's [render] table
+//! ```
+//!
+//! References are kept in `DIR/references/` under the SHA-256 of the scene text, the pose and
+//! the reference's settings, so a sweep run again (more settings, more repeats) reuses them.
+
+pub mod chart;
+
+use super::AppError;
+use crate::config::Config;
+use crate::fidelity::metrics::{FrameError, frame_error};
+use crate::raycast::reference::{self, ReferenceSettings};
+use crate::render::Renderer;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSweep {
+    repeats: Option<usize>,
+    reference: Option<RawReference>,
+    scene: Vec<RawScene>,
+    setting: Vec<RawSetting>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawReference {
+    tolerance: Option<f64>,
+    max_depth: Option<u32>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    name: String,
+    file: String,
+    trajectory: Option<String>,
+    pose: Option<toml::Value>,
+    patch: Option<toml::Table>,
+    #[serde(default)]
+    peer: Vec<Peer>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSetting {
+    name: String,
+    #[serde(default)]
+    render: toml::Table,
+}
+
+/// Another renderer measured on a scene (quoted in the sweep file with its source).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Peer {
+    pub name: String,
+    pub time_s: f64,
+    pub median: Option<f64>,
+    pub p99: Option<f64>,
+    pub total: Option<f64>,
+}
+
+/// One row of `sweep.csv`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub scene: String,
+    pub setting: String,
+    /// The setting's `[render]` keys, as TOML.
+    pub render: String,
+    pub time_ms_median: f64,
+    pub time_ms_min: f64,
+    pub err_total: f64,
+    pub err_median: f64,
+    pub err_p95: f64,
+    pub err_p99: f64,
+    pub ssim: f64,
+    pub lit_px: usize,
+    pub points_kept: usize,
+    pub surface_samples: usize,
+    /// On the scene's Pareto front: no other setting is as fast and as accurate on every
+    /// figure, and better on one.
+    pub front: bool,
+    /// The reference's own estimated error: total, and p99 per lit pixel.
+    pub ref_est_total: f64,
+    pub ref_est_p99: f64,
+    /// Why the setting could not render this scene (then the figures are NaN).
+    pub failure: String,
+}
+
+#[derive(Debug, Serialize)]
+pub struct SweepReport {
+    pub rows: usize,
+    pub scenes: Vec<SceneSummary>,
+    pub csv: String,
+    pub charts: Vec<String>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct SceneSummary {
+    pub name: String,
+    pub width: usize,
+    pub height: usize,
+    pub phase_deg: f64,
+    pub range_m: f64,
+    pub reference_s: f64,
+    pub reference_reused: bool,
+    pub front: Vec<String>,
+}
+
+/// A scene of the sweep, ready: its text (with the patch), config and peers.
+pub struct SweepScene {
+    pub name: String,
+    pub text: String,
+    pub config: Config,
+    pub peers: Vec<Peer>,
+}
+
+fn bad(file: &Path, what: impl std::fmt::Display) -> AppError {
+    AppError::Sweep(format!("{}: {what}", file.display()))
+}
+
+/// Deep-merges `patch` into `base` (tables merge key by key; anything else is replaced).
+pub fn merge(base: &mut toml::Table, patch: &toml::Table) {
+    for (k, v) in patch {
+        match (base.get_mut(k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(p)) => merge(b, p),
+            _ => {
+                base.insert(k.clone(), v.clone());
+            }
+        }
+    }
+}
+
+/// Reads the scene of `raw`, patched, with its pose (from a trajectory when named).
+fn load_scene(dir: &Path, raw: &RawScene, sweep_file: &Path) -> Result<SweepScene, AppError> {
+    let path = dir.join(&raw.file);
+    let text = std::fs::read_to_string(&path).map_err(|e| bad(&path, e))?;
+    let mut table: toml::Table = toml::from_str(&text).map_err(|e| bad(&path, e))?;
+    if let Some(p) = &raw.patch {
+        merge(&mut table, p);
+    }
+    let text = toml::to_string(&table).map_err(|e| bad(sweep_file, e))?;
+    let label = path.display().to_string();
+    let mut config = crate::config::parse(&text, &label)?;
+    if let Some(t) = &raw.trajectory {
+        let poses = crate::trajectory::read(&dir.join(t))?;
+        let range = |i: &usize| poses[*i].1.camera_position_m.length();
+        let index = match &raw.pose {
+            Some(toml::Value::Integer(i)) if (*i as usize) < poses.len() => *i as usize,
+            Some(toml::Value::String(s)) if s == "closest" => {
+                { (0..poses.len()).min_by(|a, b| range(a).total_cmp(&range(b))) }.unwrap_or(0)
+            }
+            Some(toml::Value::String(s)) if s == "farthest" => {
+                { (0..poses.len()).max_by(|a, b| range(a).total_cmp(&range(b))) }.unwrap_or(0)
+            }
+            other => {
+                return Err(bad(
+                    sweep_file,
+                    format!(
+                        "scene {:?}: pose = {other:?}: \"closest\", \"farthest\" or a row index below {}",
+                        raw.name,
+                        poses.len()
+                    ),
+                ));
+            }
+        };
+        config.pose = poses[index].1;
+    }
+    Ok(SweepScene {
+        name: raw.name.clone(),
+        text,
+        config,
+        peers: raw.peer.clone(),
+    })
+}
+
+/// The scene's text with the setting's `[render]` keys, validated.
+fn with_setting(scene: &SweepScene, render: &toml::Table) -> Result<Config, AppError> {
+    let mut table: toml::Table = toml::from_str(&scene.text)
+        .map_err(|e| AppError::Sweep(format!("scene {:?}: {e}", scene.name)))?;
+    let mut patch = toml::Table::new();
+    patch.insert("render".into(), toml::Value::Table(render.clone()));
+    merge(&mut table, &patch);
+    let text = toml::to_string(&table).map_err(|e| AppError::Sweep(e.to_string()))?;
+    let mut cfg = crate::config::parse(&text, &scene.name)?;
+    cfg.pose = scene.config.pose;
+    Ok(cfg)
+}
+
+/// The reference of `scene`, from the cache in `dir` or rendered (and cached).
+fn reference_of(
+    scene: &SweepScene,
+    settings: &ReferenceSettings,
+    dir: &Path,
+) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
+    let p = &scene.config.pose;
+    let key = crate::io::sha256_hex(
+        format!(
+            "{}\n{:?} {:?} {:?}\n{:?}",
+            scene.text, p.camera_position_m, p.body_from_camera, p.sun_position_m, settings
+        )
+        .as_bytes(),
+    );
+    let file = dir.join(format!("{}.f64", &key[..16]));
+    let n = {
+        let i = &scene.config.scene.camera.intrinsics;
+        (i.width_px * i.height_px) as usize
+    };
+    if let Ok(bytes) = std::fs::read(&file)
+        && bytes.len() == 8 * (n + 3)
+    {
+        let v: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
+            .collect();
+        return Ok((v[3..].to_vec(), v[0], v[1], v[2], true));
+    }
+    let r = reference::render(&scene.config.scene, p, settings)?;
+    let head = [
+        r.report.seconds,
+        r.report.est_error_total,
+        r.report.est_error_p99,
+    ];
+    std::fs::create_dir_all(dir).map_err(|e| bad(dir, e))?;
+    let bytes: Vec<u8> = head
+        .iter()
+        .chain(&r.frame.pl)
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    std::fs::write(&file, bytes).map_err(|e| bad(&file, e))?;
+    Ok((r.frame.pl, head[0], head[1], head[2], false))
+}
+
+/// Marks the rows of one scene that are on its Pareto front (time and every error figure).
+pub fn mark_front(rows: &mut [Row]) {
+    let err = |r: &Row| FrameError {
+        total: r.err_total,
+        median: r.err_median,
+        p95: r.err_p95,
+        p99: r.err_p99,
+        ssim: r.ssim,
+        lit_px: 0,
+    };
+    let ok: Vec<bool> = rows.iter().map(|r| r.failure.is_empty()).collect();
+    let front: Vec<bool> = (0..rows.len())
+        .map(|a| {
+            ok[a]
+                && !(0..rows.len()).any(|b| {
+                    b != a
+                        && ok[b]
+                        && rows[b].time_ms_median <= rows[a].time_ms_median
+                        && err(&rows[b]).no_worse_than(&err(&rows[a]))
+                        && (rows[b].time_ms_median < rows[a].time_ms_median
+                            || err(&rows[b]) != err(&rows[a]))
+                })
+        })
+        .collect();
+    for (r, f) in rows.iter_mut().zip(front) {
+        r.front = f;
+    }
+}
+
+/// Runs the sweep of `file` and writes its outputs into `out`; `progress` hears each line.
+pub fn run(
+    file: &Path,
+    out: &Path,
+    mut progress: impl FnMut(&str),
+) -> Result<SweepReport, AppError> {
+    let text = std::fs::read_to_string(file).map_err(|e| bad(file, e))?;
+    let raw: RawSweep = toml::from_str(&text).map_err(|e| bad(file, e))?;
+    let dir = file.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(out).map_err(|e| bad(out, e))?;
+    let repeats = raw.repeats.unwrap_or(5).max(1);
+    let rr = raw.reference.unwrap_or_default();
+    let ref_settings = ReferenceSettings {
+        tolerance: rr.tolerance.unwrap_or(1e-6),
+        max_depth: rr.max_depth.unwrap_or(10),
+        ..Default::default()
+    };
+    let mut rows = Vec::new();
+    let mut scenes = Vec::new();
+    let mut panels = Vec::new();
+    for raw_scene in &raw.scene {
+        let scene = load_scene(dir, raw_scene, file)?;
+        let intr = &scene.config.scene.camera.intrinsics;
+        let (w, h) = (intr.width_px as usize, intr.height_px as usize);
+        progress(&format!("{}: reference ...", scene.name));
+        let (reference, ref_s, ref_total, ref_p99, reused) =
+            reference_of(&scene, &ref_settings, &out.join("references"))?;
+        progress(&format!(
+            "{}: reference {:.1} s{} (its estimated error: total {ref_total:.1e}, p99 {ref_p99:.1e})",
+            scene.name,
+            ref_s,
+            if reused { ", reused" } else { "" }
+        ));
+        // Each setting's config, or why it cannot render this scene.
+        let configs: Vec<Result<Config, String>> = raw
+            .setting
+            .iter()
+            .map(|s| with_setting(&scene, &s.render).map_err(|e| e.to_string()))
+            .collect();
+        let mut renderer = Renderer::new(scene.config.settings.threads)?;
+        let mut times = vec![Vec::new(); configs.len()];
+        let mut frames: Vec<Option<Result<crate::render::Frame, String>>> =
+            vec![None; configs.len()];
+        for _ in 0..repeats {
+            for (k, cfg) in configs.iter().enumerate() {
+                let Ok(cfg) = cfg else { continue };
+                if matches!(frames[k], Some(Err(_))) {
+                    continue;
+                }
+                let t0 = Instant::now();
+                let f = renderer.render(&cfg.scene, &cfg.pose, &cfg.settings);
+                times[k].push(t0.elapsed().as_secs_f64() * 1e3);
+                if frames[k].is_none() || f.is_err() {
+                    frames[k] = Some(f.map_err(|e| e.to_string()));
+                }
+            }
+        }
+        let mut scene_rows = Vec::new();
+        for (k, s) in raw.setting.iter().enumerate() {
+            let render = toml::to_string(&s.render)
+                .unwrap_or_default()
+                .trim()
+                .replace('\n', "; ");
+            let failure = match (&configs[k], &frames[k]) {
+                (Err(e), _) | (_, Some(Err(e))) => e.clone(),
+                _ => String::new(),
+            };
+            let (e, kept, samples) = match &frames[k] {
+                Some(Ok(f)) => (
+                    frame_error(&f.pl, &reference, w, h),
+                    f.stats.points_kept,
+                    f.stats.surface_samples,
+                ),
+                _ => (
+                    FrameError {
+                        total: f64::NAN,
+                        median: f64::NAN,
+                        p95: f64::NAN,
+                        p99: f64::NAN,
+                        ssim: f64::NAN,
+                        lit_px: 0,
+                    },
+                    0,
+                    0,
+                ),
+            };
+            let [t_med, t_min] = if failure.is_empty() {
+                crate::stats::quantiles(&mut times[k], [0.5, 0.0])
+            } else {
+                [f64::NAN; 2]
+            };
+            let row = Row {
+                scene: scene.name.clone(),
+                setting: s.name.clone(),
+                render,
+                time_ms_median: t_med,
+                time_ms_min: t_min,
+                err_total: e.total,
+                err_median: e.median,
+                err_p95: e.p95,
+                err_p99: e.p99,
+                ssim: e.ssim,
+                lit_px: e.lit_px,
+                points_kept: kept,
+                surface_samples: samples,
+                front: false,
+                ref_est_total: ref_total,
+                ref_est_p99: ref_p99,
+                failure,
+            };
+            progress(&format!(
+                "{}: {:24} {:9.2} ms  total {:.2e}  median {:.2e}  p95 {:.2e}  p99 {:.2e}  ssim {:.6}{}",
+                row.scene,
+                row.setting,
+                row.time_ms_median,
+                row.err_total,
+                row.err_median,
+                row.err_p95,
+                row.err_p99,
+                row.ssim,
+                if row.failure.is_empty() {
+                    String::new()
+                } else {
+                    format!("  ({})", row.failure)
+                }
+            ));
+            scene_rows.push(row);
+        }
+        mark_front(&mut scene_rows);
+        scenes.push(SceneSummary {
+            name: scene.name.clone(),
+            width: w,
+            height: h,
+            phase_deg: scene
+                .config
+                .pose
+                .sun_position_m
+                .angle_between(scene.config.pose.camera_position_m)
+                .to_degrees(),
+            range_m: scene.config.pose.camera_position_m.length(),
+            reference_s: ref_s,
+            reference_reused: reused,
+            front: scene_rows
+                .iter()
+                .filter(|r| r.front)
+                .map(|r| r.setting.clone())
+                .collect(),
+        });
+        panels.push(chart::Panel {
+            scene: scene.name.clone(),
+            rows: scene_rows.clone(),
+            peers: scene.peers.clone(),
+        });
+        rows.extend(scene_rows);
+    }
+    let csv_path = out.join("sweep.csv");
+    let mut w = csv::Writer::from_path(&csv_path).map_err(|e| bad(&csv_path, e))?;
+    for r in &rows {
+        w.serialize(r).map_err(|e| bad(&csv_path, e))?;
+    }
+    w.flush().map_err(|e| bad(&csv_path, e))?;
+    let charts: Vec<PathBuf> = vec![out.join("front.png"), out.join("front.svg")];
+    chart::draw(&panels, &charts[0], &charts[1]).map_err(|e| bad(&charts[0], e))?;
+    Ok(SweepReport {
+        rows: rows.len(),
+        scenes,
+        csv: csv_path.display().to_string(),
+        charts: charts.iter().map(|p| p.display().to_string()).collect(),
+    })
+}

@@ -26,7 +26,7 @@
 //! | [`io`] | FITS and PNG outputs (in memory too), grayscale PNG input (photographs), SHA-256 content hashes |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
-//! | [`app`] | the commands behind the binary: `render`, `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
+//! | [`app`] | the commands behind the binary: `render` (the quadrangle pipeline or `--reference`), `sweep` (the speed-accuracy front and its chart), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
 //!
 //! # Data flow of one frame
 //!
@@ -40,6 +40,11 @@
 //!   detector: S = (P/L)·∫QE·T·λ/(hc)·L_e dλ  → electrons (+noise) → DN
 //!                                        │
 //!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
+//!
+//!   raycast::reference::render(scene, pose) ─► the converged Frame (+ its error per pixel)
+//!   fidelity::metrics::frame_error(frame, reference) ─► total, median / p95 / p99, SSIM
+//!     (app::sweep: scenes x settings → sweep.csv, front.png / front.svg;
+//!      app::stability: the hard cases → docs/stability.md)
 //!                                        │ signal [e-/s]
 //!   stimulator: F_eff = k·S (Eq. 60) → screen region (collimator) → calibration⁻¹ (+ dither)
 //!               → screen DN ─► simulated camera: true response → collimator → detector → DN

@@ -45,6 +45,18 @@ enum Command {
         #[arg(long, default_value = "out/sweep")]
         out: PathBuf,
     },
+    /// The stability suite: the renderer where methods fail (extreme ranges and phases, the
+    /// body cut or behind the camera, degenerate poses, broken maps, DEM cliffs, extreme Hapke,
+    /// a 10:1 ellipsoid, 1 x 1 and 8192 x 8192 images), each case time-limited; writes the
+    /// report as Markdown.
+    Stability {
+        /// The report (e.g. docs/stability.md).
+        #[arg(long, default_value = "docs/stability.md")]
+        out: PathBuf,
+        /// Time limit per case [s].
+        #[arg(long, default_value_t = 300)]
+        limit_s: u64,
+    },
     /// Render a scene as its camera saves it and compare it with a real photograph: NCC
     /// alignment, SSIM luminance / contrast / structure over the foreground, total DN ratio.
     Compare {
@@ -197,6 +209,29 @@ fn run() -> anyhow::Result<()> {
             };
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
             println!("{}", serde_json::to_string(&summary)?);
+        }
+        Command::Stability { out, limit_s } => {
+            let work =
+                std::env::temp_dir().join(format!("optistim-stability-{}", std::process::id()));
+            let reports =
+                app::stability::run(&work, std::time::Duration::from_secs(limit_s), |r| {
+                    eprintln!("{}: {:?} ({:.0} ms)", r.case, r.outcome, r.ms)
+                })?;
+            std::fs::write(&out, app::stability::markdown(&reports))
+                .with_context(|| format!("writing {}", out.display()))?;
+            let wrong = reports.iter().filter(|r| !r.as_expected()).count();
+            println!(
+                "{}",
+                serde_json::json!({"cases": reports.len(), "not_as_expected": wrong, "report": out})
+            );
+            if wrong > 0 {
+                anyhow::bail!(
+                    "{wrong} cases not as expected (see {}; the cases' scenes are in {})",
+                    out.display(),
+                    work.display()
+                );
+            }
+            let _ = std::fs::remove_dir_all(&work);
         }
         Command::Sweep { sweep, out } => {
             let report = app::sweep::run(&sweep, &out, |line| eprintln!("{line}"))?;

@@ -6,6 +6,7 @@ pub mod compare;
 pub mod render;
 pub mod replay;
 pub mod show;
+pub mod stability;
 pub mod sweep;
 
 #[derive(Debug, thiserror::Error)]
@@ -26,6 +27,8 @@ pub enum AppError {
     Display(#[from] crate::display::DisplayError),
     #[error("compare: {0}")]
     Compare(String),
+    #[error("stability: {0}")]
+    Stability(String),
     #[error("sweep: {0}")]
     Sweep(String),
     #[error("replay: {0}")]

@@ -168,9 +168,9 @@ impl<'a> Tracer<'a> {
         };
         let (dir, cos_eps, solid) = self.line_of_sight(u, v);
         let body = &self.scene.body;
-        let t = match self.displaced {
-            Some(r) => r.intersect_displaced(self.camera_m, dir),
-            None => body.shape.intersect(self.camera_m, dir),
+        let t = match (&self.terrain, self.displaced) {
+            (Some(terrain), Some(_)) => terrain.intersect(self.camera_m, dir, 0.0),
+            _ => body.shape.intersect(self.camera_m, dir),
         };
         let Some(t) = t else { return miss };
         let p = self.camera_m + dir * t;
@@ -221,18 +221,18 @@ fn surface_normal(shape: &Shape, p: DVec3) -> DVec3 {
     }
 }
 
-/// The terrain of a DEM as shadows see it: the surface `r = R + h(lon, lat)` (bilinear
-/// heights), marched an eighth of a texel a step towards the Sun, independently of the
-/// pipeline's ray marching (which steps a quarter texel).
+/// The terrain of a DEM as the ray caster sees it: the surface `r = R + h(lon, lat)`
+/// (bilinear heights), met by sphere tracing ([`Terrain::intersect`]), independently of the
+/// pipeline's fixed-step ray marching (a quarter texel, which a grazing ray can skip through).
 struct Terrain {
     heights: Arc<Map>,
     radius_m: f64,
     top_m: f64,
-    bottom_m: f64,
     /// The steepest slope between neighbouring texels anywhere (tan of its angle): a ray
     /// rising more steeply than this cannot be blocked.
     max_slope: f64,
-    step_m: f64,
+    /// The shortest step of the sphere tracing: a hundredth of a texel [m].
+    min_step_m: f64,
 }
 
 impl Terrain {
@@ -242,13 +242,12 @@ impl Terrain {
         let (dlon, dlat) = map.spacing_rad();
         let (w, h) = (map.width, map.height);
         let v = |r: usize, c: usize| map.values[r * w + c] as f64;
-        let (mut top, mut bottom, mut max_slope) = (f64::MIN, f64::MAX, 0.0f64);
+        let (mut top, mut max_slope) = (f64::MIN, 0.0f64);
         for r in 0..h {
             let arc_e = r0 * map.row_lat(r).cos().abs().max(1e-9) * dlon;
             for c in 0..w {
                 let here = v(r, c);
                 top = top.max(here);
-                bottom = bottom.min(here);
                 if c + 1 < w || map.wraps() {
                     let east = v(r, (c + 1) % w);
                     max_slope = max_slope.max((east - here).abs() / arc_e);
@@ -259,11 +258,10 @@ impl Terrain {
             }
         }
         Terrain {
-            step_m: 0.125 * r0 * dlat,
+            min_step_m: 1e-2 * r0 * dlat,
             heights: map,
             radius_m: r0,
             top_m: top.max(0.0),
-            bottom_m: bottom.min(0.0),
             // Both slopes at once (the gradient's length) bound any direction's.
             max_slope: max_slope * std::f64::consts::SQRT_2,
         }
@@ -272,6 +270,65 @@ impl Terrain {
     fn height_at(&self, p: DVec3) -> Option<f64> {
         let (lon, lat) = crate::geometry::lon_lat(p);
         self.heights.sample(lon, lat)
+    }
+
+    /// The first `t > t0` where the ray `origin + t dir` (`dir` unit) is below the terrain
+    /// `r = R + h`, by sphere tracing: where the ray is `g` above the ground, the ground cannot
+    /// come nearer than `g / (1 + s)` along it (`s` the steepest slope: the height rises at
+    /// most `s` per metre and the ray's radius falls at most 1 per metre), so that is the
+    /// step, but at least a hundredth of a texel (a ridge thinner than that along the ray may
+    /// be skipped by a ray grazing it; where the step overshoots below the ground, the
+    /// crossing is found by bisection). A ray still above the ground after `MAX_STEPS` steps
+    /// counts as meeting it.
+    fn intersect(&self, origin: DVec3, dir: DVec3, t0: f64) -> Option<f64> {
+        const MAX_STEPS: usize = 1_000_000;
+        let ceiling = self.radius_m + self.top_m;
+        let b = origin.dot(dir);
+        let disc = b * b - (origin.length_squared() - ceiling * ceiling);
+        if disc < 0.0 {
+            return None;
+        }
+        let (t_in, t_out) = (-b - disc.sqrt(), -b + disc.sqrt());
+        if t_out <= t0 {
+            return None;
+        }
+        let hit_within = 1e-9 * self.radius_m;
+        let rate = 1.0 + self.max_slope;
+        let gap = |t: f64| {
+            let q = origin + dir * t;
+            let r = q.length();
+            r - self.radius_m - self.height_at(q / r).unwrap_or(0.0)
+        };
+        let mut t = t_in.max(t0);
+        let mut g = gap(t);
+        for _ in 0..MAX_STEPS {
+            if g <= hit_within {
+                return Some(t);
+            }
+            let next = t + (g / rate).max(self.min_step_m);
+            let g_next = gap(next);
+            if g_next < 0.0 {
+                // Overshot (a minimal step): the crossing lies between.
+                let (mut lo, mut hi) = (t, next);
+                for _ in 0..60 {
+                    let mid = 0.5 * (lo + hi);
+                    if gap(mid) > 0.0 {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                    if hi - lo < hit_within {
+                        break;
+                    }
+                }
+                return Some(hi);
+            }
+            if next > t_out {
+                return None;
+            }
+            (t, g) = (next, g_next);
+        }
+        Some(t)
     }
 
     /// Whether the terrain hides direction `toward` (unit) from the surface point over the
@@ -288,26 +345,8 @@ impl Terrain {
             return false; // the BRDF's cosine on the sphere already says so
         }
         let h0 = self.height_at(up).unwrap_or(0.0);
-        // A hair above the ground, so the start does not count as below it.
-        let start = up * (self.radius_m + h0 + 1e-6 * self.step_m);
-        let ceiling = self.radius_m + self.top_m;
-        let floor = self.radius_m + self.bottom_m;
-        let mut t = self.step_m;
-        loop {
-            let q = start + toward * t;
-            let r = q.length();
-            if r > ceiling {
-                return false;
-            }
-            if r < floor {
-                return true;
-            }
-            if let Some(h) = self.height_at(q / r)
-                && r < self.radius_m + h
-            {
-                return true;
-            }
-            t += self.step_m;
-        }
+        // Clear of the ground it starts on: a thousand times the hit tolerance above it.
+        let start = up * (self.radius_m + h0 + 1e-6 * self.radius_m);
+        self.intersect(start, toward, 0.0).is_some()
     }
 }

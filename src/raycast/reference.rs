@@ -12,7 +12,7 @@
 //! Edges are where quadrature fails silently, so they are refined whatever the rules say:
 //! - cells that may straddle the silhouette ([`Coverage::Edge`]) are cut down to `edge_depth`
 //!   halvings (on a displaced DEM, whose silhouette test only bounds a band, only those whose
-//!   rays do not all meet the body): a sliver of limb between the rays, or a corner beyond the
+//!   rays partly meet the body): a sliver of limb between the rays, or a corner beyond the
 //!   limb while every ray meets the body, was 8.8e-6 of a flat (Area) disk's light;
 //! - cells whose rays are partly lit and partly dark (terminator, shadows) are cut down to
 //!   `light_depth` halvings;
@@ -54,6 +54,9 @@ pub struct ReferenceSettings {
     /// (the pixel or one of its eight neighbours has rays that disagree), before any is
     /// accepted: a lit sliver entering from a neighbour between the rule's points is found.
     pub near_depth: u32,
+    /// Most cells accepted in one pixel: past it the pixel's remaining cells are accepted
+    /// as they are (and counted unconverged), so that no pixel runs away.
+    pub max_cells_per_px: u64,
     /// Worker threads (0 = all cores).
     pub threads: usize,
 }
@@ -66,6 +69,7 @@ impl Default for ReferenceSettings {
             edge_depth: 10,
             light_depth: 5,
             near_depth: 3,
+            max_cells_per_px: 8192,
             threads: 0,
         }
     }
@@ -176,16 +180,24 @@ fn pixel(
         }
         rays += 13;
         let (g2, g3, _, hits, lit) = rules(tracer, &c);
-        // A cell that may straddle the silhouette is not trusted (where the silhouette test is
-        // tight; elsewhere, only when all its rays meet the body), and one that straddles the
+        // A cell that may straddle the silhouette is not trusted where the silhouette test is
+        // tight (elsewhere, in the band between a DEM's lowest and highest spheres, only a cell
+        // whose rays partly meet the body is: cutting every cell of the band to the deepest
+        // level would take hours), and one that straddles the
         // edge of the light (terminator, shadow) only when its rays are all lit or all dark:
         // a sliver may hide between the rays, or a corner stick out beyond the limb.
-        let edge = coverage == Coverage::Edge && (hits < 13 || tracer.tight_silhouette());
+        let edge = coverage == Coverage::Edge
+            && if tracer.tight_silhouette() {
+                true
+            } else {
+                hits > 0 && hits < 13
+            };
         let must_cut = (edge && c.depth < s.edge_depth)
             || (lit > 0 && lit < 13 && c.depth < s.light_depth)
             || (near_edge && c.depth < s.near_depth);
         let e = (g3 - g2).abs();
-        if !must_cut && (e <= tau * c.side || c.depth >= s.max_depth) {
+        let exhausted = cells + stack.len() as u64 >= s.max_cells_per_px;
+        if exhausted || (!must_cut && (e <= tau * c.side || c.depth >= s.max_depth)) {
             value += g3;
             err += e;
             cells += 1;
@@ -221,20 +233,20 @@ pub fn render(
             allowed: "a number > 0",
         });
     }
-    if settings.max_depth > 20
-        || settings.edge_depth > settings.max_depth
-        || settings.light_depth > settings.max_depth
-        || settings.near_depth > settings.max_depth
-    {
+    if settings.max_depth > 20 {
         return Err(RenderError::BadSettings {
             field: "reference.max_depth",
-            value: format!(
-                "{} (edge_depth {})",
-                settings.max_depth, settings.edge_depth
-            ),
-            allowed: "max_depth <= 20 and edge_depth <= max_depth",
+            value: settings.max_depth.to_string(),
+            allowed: "at most 20",
         });
     }
+    // The forced depths go no deeper than the deepest level.
+    let settings = &ReferenceSettings {
+        edge_depth: settings.edge_depth.min(settings.max_depth),
+        light_depth: settings.light_depth.min(settings.max_depth),
+        near_depth: settings.near_depth.min(settings.max_depth),
+        ..*settings
+    };
     crate::render::check_pose(scene, pose)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(settings.threads)

@@ -89,7 +89,13 @@ fn panel_on<DB: DrawingBackend>(
         .x_desc("frame time [ms]")
         .y_desc(fig.0)
         .y_label_formatter(&|y| format!("{y:.0e}"))
-        .x_label_formatter(&|x| format!("{x:.3}"))
+        .x_label_formatter(&|x| {
+            if *x >= 10.0 {
+                format!("{x:.0}")
+            } else {
+                format!("{x:.2}")
+            }
+        })
         .label_style(("sans-serif", 12))
         .draw()
         .map_err(|e| e.to_string())?;

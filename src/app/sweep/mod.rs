@@ -30,8 +30,8 @@
 //!
 //! [[setting]]
 //! name = "default"
-//! render = { preset = "default" }   # merged into the scene's [render] table
-//! ```
+//! render = { preset = "default" }   # the frame's [render] table, over the scene's
+//! ```                               # patch.render (the scene file's own [render] is not used)
 //!
 //! References are kept in `DIR/references/` under the SHA-256 of the scene text, the pose and
 //! the reference's settings, so a sweep run again (more settings, more repeats) reuses them.
@@ -144,7 +144,11 @@ pub struct SceneSummary {
 /// A scene of the sweep, ready: its text (with the patch), config and peers.
 pub struct SweepScene {
     pub name: String,
+    /// The scene file's path (relative map paths are found from it).
+    pub label: String,
     pub text: String,
+    /// The `[render]` keys every setting starts from (the scene's `patch.render`).
+    pub base_render: toml::Table,
     pub config: Config,
     pub peers: Vec<Peer>,
 }
@@ -200,23 +204,31 @@ fn load_scene(dir: &Path, raw: &RawScene, sweep_file: &Path) -> Result<SweepScen
         };
         config.pose = poses[index].1;
     }
+    let base_render = match raw.patch.as_ref().and_then(|p| p.get("render")) {
+        Some(toml::Value::Table(t)) => t.clone(),
+        _ => toml::Table::new(),
+    };
     Ok(SweepScene {
         name: raw.name.clone(),
+        label,
         text,
+        base_render,
         config,
         peers: raw.peer.clone(),
     })
 }
 
-/// The scene's text with the setting's `[render]` keys, validated.
+/// The scene's text with its `[render]` table replaced by the setting's keys over the scene's
+/// `patch.render` (the scene file's own `[render]` is not used: every setting starts from the
+/// same defaults, whatever preset the file names), validated.
 fn with_setting(scene: &SweepScene, render: &toml::Table) -> Result<Config, AppError> {
     let mut table: toml::Table = toml::from_str(&scene.text)
         .map_err(|e| AppError::Sweep(format!("scene {:?}: {e}", scene.name)))?;
-    let mut patch = toml::Table::new();
-    patch.insert("render".into(), toml::Value::Table(render.clone()));
-    merge(&mut table, &patch);
+    let mut base = scene.base_render.clone();
+    merge(&mut base, render);
+    table.insert("render".into(), toml::Value::Table(base));
     let text = toml::to_string(&table).map_err(|e| AppError::Sweep(e.to_string()))?;
-    let mut cfg = crate::config::parse(&text, &scene.name)?;
+    let mut cfg = crate::config::parse(&text, &scene.label)?;
     cfg.pose = scene.config.pose;
     Ok(cfg)
 }

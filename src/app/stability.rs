@@ -296,7 +296,7 @@ fn cases(dir: &Path) -> Result<Vec<Case>, AppError> {
             ))
         },
         Case {
-            pose: Some(|p| p.body_from_camera = p.body_from_camera * 2.0),
+            pose: Some(|p| p.body_from_camera *= 2.0),
             ..refused(s(
                 "non-unit quaternion (norm 2)",
                 wide(&look(far), sun_at(30.0)),

@@ -69,7 +69,7 @@ impl Default for ReferenceSettings {
             edge_depth: 10,
             light_depth: 5,
             near_depth: 3,
-            max_cells_per_px: 8192,
+            max_cells_per_px: 1 << 18,
             threads: 0,
         }
     }

@@ -18,9 +18,11 @@ use std::time::Instant;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 
-/// Messages waiting for a client before newer ones are dropped (a camera frame of 1024^2 is
-/// 2 MiB: 16 of them bound a non-reading subscriber's cost).
-const OUTBOUND_QUEUE: usize = 16;
+/// Messages waiting for a client before newer ones are dropped: acks and errors (tens of
+/// bytes) up to 4096, about 40 s of a 100 Hz stream whose writer is starved, so a busy machine
+/// loses none; camera frames (a 1024^2 one is 2 MiB) only while fewer than 16 messages wait,
+/// which bounds a non-reading subscriber's cost ([`crate::server::Outbound::send`]).
+const OUTBOUND_QUEUE: usize = 4096;
 
 /// Accepts pose connections until shutdown.
 pub async fn accept(listener: TcpListener, shared: Arc<Shared>) {

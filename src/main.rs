@@ -217,7 +217,7 @@ fn run() -> anyhow::Result<()> {
                 app::stability::run(&work, std::time::Duration::from_secs(limit_s), |r| {
                     eprintln!("{}: {:?} ({:.0} ms)", r.case, r.outcome, r.ms)
                 })?;
-            std::fs::write(&out, app::stability::markdown(&reports))
+            std::fs::write(&out, app::stability::markdown(&reports, &work))
                 .with_context(|| format!("writing {}", out.display()))?;
             let wrong = reports.iter().filter(|r| !r.as_expected()).count();
             println!(

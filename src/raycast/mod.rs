@@ -5,7 +5,8 @@
 //!
 //! It shares no integration, bounding or gridding code with the pipeline: only the body's
 //! shape (ray intersections), its maps (albedo, DEM normals) and the BRDFs. Shadows cast by a
-//! DEM are marched here with their own code ([`Terrain`]), finer than the pipeline's.
+//! DEM, and a displaced surface itself, are met here by their own sphere tracing
+//! ([`Terrain`]), which no grazing ray skips through, unlike the pipeline's fixed-step marching.
 //!
 //! The quantity cast along a ray is the integrand of Eq. 11 written per unit solid angle of
 //! the line of sight: with `mu dA / d_cam^2 = dOmega`,
@@ -36,8 +37,8 @@ pub struct Tracer<'a> {
     body_from_camera: DMat3,
     /// `A_sun A_cam / (f_u f_v)` [m^4 / px^2]: turns the integrand into `(P/L)` per px^2.
     k_px: f64,
-    /// The shape's surface is moved by the DEM (rays meet the displaced surface).
-    displaced: Option<&'a Relief>,
+    /// The shape's surface is moved by the DEM (rays meet [`Terrain`], which is then set).
+    displaced: bool,
     terrain: Option<Terrain>,
     /// The silhouette test's space: the body frame scaled by `scale` (the unit sphere's for an
     /// undisplaced ellipsoid, `x' = A^-1 x`, else the body frame) where directions turn by at
@@ -77,11 +78,7 @@ impl<'a> Tracer<'a> {
         let (fu, fv) = intr.focal_px();
         let relief = scene.body.relief.as_ref();
         let displaced = relief.filter(|r| r.displaces());
-        let outer = crate::body::rendered_radius_m(&scene.body.shape, relief);
-        let inner = match displaced {
-            Some(r) => r.lowest_radius_m().min(scene.body.shape.inner_radius_m()),
-            None => scene.body.shape.inner_radius_m(),
-        };
+        // The silhouette test's space and the radii bounding the surface there.
         let (scale, kappa, outer, inner) = match (&scene.body.shape, displaced) {
             (Shape::Ellipsoid(e), None) => (
                 DVec3::ONE / e.semi_axes_m,
@@ -89,7 +86,18 @@ impl<'a> Tracer<'a> {
                 1.0,
                 1.0,
             ),
-            _ => (DVec3::ONE, 1.0, outer, inner),
+            (shape, Some(r)) => (
+                DVec3::ONE,
+                1.0,
+                crate::body::rendered_radius_m(shape, relief),
+                r.lowest_radius_m().min(shape.inner_radius_m()),
+            ),
+            (shape, None) => (
+                DVec3::ONE,
+                1.0,
+                shape.bounding_radius_m(),
+                shape.inner_radius_m(),
+            ),
         };
         let camera = pose.camera_position_m * scale;
         let d = camera.length();
@@ -100,7 +108,7 @@ impl<'a> Tracer<'a> {
             sun_m: pose.sun_position_m,
             body_from_camera: DMat3::from_quat(pose.body_from_camera),
             k_px: scene.sun.area_m2() * intr.aperture_area_m2() / (fu * fv),
-            displaced,
+            displaced: displaced.is_some(),
             terrain: relief.map(Terrain::new),
             scale,
             kappa,
@@ -156,7 +164,7 @@ impl<'a> Tracer<'a> {
     /// undisplaced ellipsoid in its parameter space), rather than anywhere between the
     /// spheres bounding a displaced DEM.
     pub fn tight_silhouette(&self) -> bool {
-        self.displaced.is_none()
+        !self.displaced
     }
 
     /// Casts the line of sight through pixel position `(u, v)`.
@@ -168,8 +176,8 @@ impl<'a> Tracer<'a> {
         };
         let (dir, cos_eps, solid) = self.line_of_sight(u, v);
         let body = &self.scene.body;
-        let t = match (&self.terrain, self.displaced) {
-            (Some(terrain), Some(_)) => terrain.intersect(self.camera_m, dir, 0.0),
+        let t = match &self.terrain {
+            Some(terrain) if self.displaced => terrain.intersect(self.camera_m, dir, 0.0),
             _ => body.shape.intersect(self.camera_m, dir),
         };
         let Some(t) = t else { return miss };
@@ -191,7 +199,7 @@ impl<'a> Tracer<'a> {
             return hit(0.0);
         }
         if let Some(terrain) = &self.terrain
-            && terrain.shadowed(up, s, self.displaced.is_some())
+            && terrain.shadowed(up, s, self.displaced)
         {
             return hit(0.0);
         }

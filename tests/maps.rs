@@ -8,7 +8,6 @@ use optistim::body::AlbedoMap;
 use optistim::body::maps::{Encoding, Map};
 use optistim::render::Renderer;
 use std::path::Path;
-use std::sync::Arc;
 
 fn total(cfg: &optistim::config::Config) -> (f64, Vec<f64>) {
     let f = Renderer::new(0)
@@ -36,10 +35,7 @@ fn with_map(values: impl Fn(usize) -> f64, w: usize, h: usize) -> optistim::conf
     .unwrap();
     // The spec's albedo is a normal albedo: for Lambert, scale = value (rho = p_N).
     let scale_per_value = cfg.scene.body.brdf.scale() / 0.2;
-    cfg.scene.body.albedo_map = Some(AlbedoMap {
-        map: Arc::new(map),
-        scale_per_value,
-    });
+    cfg.scene.body.albedo_map = Some(AlbedoMap::new(map, scale_per_value));
     cfg
 }
 

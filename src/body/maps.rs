@@ -263,6 +263,16 @@ impl Map {
         )
     }
 
+    /// Continuous texel coordinates of `(lon, lat)` [rad]: texel `(col, row)`'s centre at
+    /// `(col, row)`, longitude not wrapped.
+    #[inline]
+    pub fn texel_coords(&self, lon: f64, lat: f64) -> (f64, f64) {
+        (
+            (lon - self.lon0) / self.dlon - 0.5,
+            (self.lat_top - lat) / self.dlat - 0.5,
+        )
+    }
+
     /// The area-weighted mean value.
     pub fn mean(&self) -> f64 {
         let (mut s, mut a) = (0.0, 0.0);
@@ -374,6 +384,40 @@ impl Map {
             }
     }
 
+    /// The next coarser level of an area-averaged pyramid: each texel the mean of a 2 x 2
+    /// block, its rows weighted by their area (`cos` of their latitude), on the same extent.
+    /// `None` when a side is odd or below 4 texels (the pyramid stops there).
+    pub fn halved(&self) -> Option<Map> {
+        let (w, h) = (self.width, self.height);
+        if w % 2 != 0 || h % 2 != 0 || w < 4 || h < 4 {
+            return None;
+        }
+        let (w2, h2) = (w / 2, h / 2);
+        let mut v = vec![0.0; w2 * h2];
+        for r in 0..h2 {
+            let (ca, cb) = (self.row_lat(2 * r).cos(), self.row_lat(2 * r + 1).cos());
+            let (ca, cb) = (ca.max(0.0), cb.max(0.0));
+            let norm = 2.0 * (ca + cb);
+            let (ra, rb) = (2 * r * w, (2 * r + 1) * w);
+            for c in 0..w2 {
+                let a = self.values[ra + 2 * c] as f64 + self.values[ra + 2 * c + 1] as f64;
+                let b = self.values[rb + 2 * c] as f64 + self.values[rb + 2 * c + 1] as f64;
+                v[r * w2 + c] = if norm > 0.0 {
+                    (ca * a + cb * b) / norm
+                } else {
+                    0.25 * (a + b)
+                };
+            }
+        }
+        let mut m = self.clone();
+        m.width = w2;
+        m.height = h2;
+        m.dlon *= 2.0;
+        m.dlat *= 2.0;
+        m.values = v.iter().map(|&x| x as f32).collect();
+        Some(m)
+    }
+
     /// Whether `other` lies on this map's grid (its [`Map::taps`] serve both).
     pub fn same_grid(&self, other: &Map) -> bool {
         (self.width, self.height, self.wraps) == (other.width, other.height, other.wraps)
@@ -434,6 +478,37 @@ mod tests {
         // Continuous across the seam.
         let e = 1e-9;
         assert!((m.sample(PI - e, 0.1).unwrap() - m.sample(-PI + e, 0.1).unwrap()).abs() < 1e-6);
+    }
+
+    /// A halved level is the area-weighted mean of each 2 x 2 block, on the same extent: its
+    /// area-weighted mean is the map's (a constant stays constant), and it samples the block's
+    /// mean at the block's centre.
+    #[test]
+    fn a_halved_level_keeps_the_area_mean_and_the_extent() {
+        let m = ramp(16, 8, |c, r| ((c * 7 + r * 3) % 5) as f64);
+        let h = m.halved().unwrap();
+        assert_eq!((h.width, h.height), (8, 4));
+        assert!(
+            (h.mean() - m.mean()).abs() < 1e-6,
+            "{} {}",
+            h.mean(),
+            m.mean()
+        );
+        let (lon, lat) = h.texel_centre(3, 1);
+        let rows = [2usize, 3];
+        let (mut s, mut a) = (0.0, 0.0);
+        for r in rows {
+            let c = m.row_lat(r).cos();
+            for col in [6usize, 7] {
+                s += c * m.values[r * 16 + col] as f64;
+                a += c;
+            }
+        }
+        assert!((h.sample(lon, lat).unwrap() - s / a).abs() < 1e-6);
+        let flat = ramp(8, 4, |_, _| 0.3).halved().unwrap();
+        assert!(flat.values.iter().all(|&v| (v - 0.3).abs() < 1e-7));
+        assert!(ramp(6, 4, |_, _| 1.0).halved().is_some());
+        assert!(ramp(6, 4, |_, _| 1.0).halved().unwrap().halved().is_none());
     }
 
     #[test]

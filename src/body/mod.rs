@@ -542,16 +542,33 @@ impl Relief {
     }
 }
 
-/// An albedo map and how its values become the BRDF's scale parameter.
+/// An albedo map and how its values become the BRDF's scale parameter, with its
+/// area-averaged levels of detail.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AlbedoMap {
     pub map: std::sync::Arc<maps::Map>,
     /// BRDF scale per unit map value: the albedo of the configured type that a scale of 1
     /// gives, inverted (1 where the map holds Hapke's or Lommel-Seeliger's `w` itself).
     pub scale_per_value: f64,
+    /// The coarser levels ([`maps::Map::halved`]): `levels[k]` has texels `2^(k+1)` times
+    /// the map's.
+    levels: std::sync::Arc<Vec<maps::Map>>,
 }
 
 impl AlbedoMap {
+    /// `map` with its pyramid of area-averaged levels (a third more memory).
+    pub fn new(map: maps::Map, scale_per_value: f64) -> AlbedoMap {
+        let mut levels: Vec<maps::Map> = Vec::new();
+        while let Some(next) = levels.last().unwrap_or(&map).halved() {
+            levels.push(next);
+        }
+        AlbedoMap {
+            map: std::sync::Arc::new(map),
+            scale_per_value,
+            levels: std::sync::Arc::new(levels),
+        }
+    }
+
     /// The BRDF scale at the body-frame unit direction `n_body`, or `fallback` outside the map.
     #[inline]
     pub fn scale_at(&self, n_body: DVec3, fallback: f64) -> f64 {
@@ -560,12 +577,66 @@ impl AlbedoMap {
             .sample(lon, lat)
             .map_or(fallback, |v| v * self.scale_per_value)
     }
+
+    /// The BRDF scale averaged over a patch about `footprint_rad` across (radians of arc on
+    /// the unit sphere) centred on `n_body`: the map itself where the patch is no wider than
+    /// a texel of latitude (exactly [`AlbedoMap::scale_at`]), else interpolated between the
+    /// two area-averaged levels whose texels bracket the patch (trilinear mip-mapping), so
+    /// that a quadrangle spanning many texels reads their mean rather than one of them.
+    #[inline]
+    pub fn scale_over(&self, n_body: DVec3, footprint_rad: f64, fallback: f64) -> f64 {
+        let ratio = footprint_rad / self.map.spacing_rad().1;
+        if !(ratio > 1.0) || self.levels.is_empty() {
+            return self.scale_at(n_body, fallback);
+        }
+        let (lon, lat) = crate::geometry::lon_lat(n_body);
+        let lod = ratio.log2();
+        let k = lod.floor() as usize;
+        let t = lod - k as f64;
+        let level = |k: usize| match k {
+            0 => &*self.map,
+            k => &self.levels[(k - 1).min(self.levels.len() - 1)],
+        };
+        let (a, b) = (level(k).sample(lon, lat), level(k + 1).sample(lon, lat));
+        match (a, b) {
+            (Some(a), Some(b)) => ((1.0 - t) * a + t * b) * self.scale_per_value,
+            (Some(v), None) | (None, Some(v)) => v * self.scale_per_value,
+            (None, None) => fallback,
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use maps::{Encoding, Map};
+
+    /// A checkerboard of 0 and 1 read over a patch: the point value while the patch is no
+    /// wider than a texel, the block mean (1/2) once it spans two texels or more, and never
+    /// outside [0, 1] in between.
+    #[test]
+    fn an_albedo_map_read_over_a_patch_gives_its_mean() {
+        let (w, h) = (64usize, 32usize);
+        let v = (0..w * h).map(|i| ((i % w + i / w) % 2) as f64).collect();
+        let map =
+            Map::from_values(std::path::Path::new("chess"), w, h, v, &Encoding::default()).unwrap();
+        let (lon, lat) = map.texel_centre(10, 12);
+        let texel = map.spacing_rad().1;
+        let a = AlbedoMap::new(map, 1.0);
+        let n = crate::geometry::unit_from_lon_lat(lon, lat);
+        assert_eq!(a.scale_over(n, 0.5 * texel, -1.0), a.scale_at(n, -1.0));
+        for k in [2.0, 3.0, 4.0, 8.0] {
+            let v = a.scale_over(n, k * texel, -1.0);
+            assert!((v - 0.5).abs() < 1e-6, "{k} texels: {v}");
+        }
+        for f in [1.2, 1.5, 1.9] {
+            let v = a.scale_over(n, f * texel, -1.0);
+            assert!(
+                (0.0..=1.0).contains(&v) && v != a.scale_at(n, -1.0),
+                "{f}: {v}"
+            );
+        }
+    }
 
     /// A DEM of a constant 5 km displaces the sphere into the bigger sphere: rays meet it
     /// there to a millimetre, and a ray passing above the highest point misses.

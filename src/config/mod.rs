@@ -564,10 +564,7 @@ impl Validator<'_> {
                     // Linear in the scale: the scale that gives an albedo of 1, per unit.
                     Some(kind) => (map, brdf.with_albedo(1.0, kind).scale()),
                 };
-                Some(crate::body::AlbedoMap {
-                    map: std::sync::Arc::new(map),
-                    scale_per_value,
-                })
+                Some(crate::body::AlbedoMap::new(map, scale_per_value))
             }
         };
         let ellipsoid = match &shape {
@@ -1158,6 +1155,14 @@ impl Validator<'_> {
         }
         if let Some(d) = r.depth {
             s.depth = d;
+        }
+        if let Some(v) = &r.map_filter {
+            use crate::render::MapFilter;
+            s.map_filter = self.pick(
+                "render.map_filter",
+                v,
+                &[("point", MapFilter::Point), ("area", MapFilter::Area)],
+            )?;
         }
         Ok(s)
     }

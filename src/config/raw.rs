@@ -208,6 +208,7 @@ pub struct RawRender {
     pub bounding_tolerance_rad: Option<f64>,
     pub depth: Option<bool>,
     pub self_shadowing: Option<String>,
+    pub map_filter: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

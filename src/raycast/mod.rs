@@ -20,13 +20,15 @@
 //! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
 
 pub mod reference;
+mod terrain;
 
-use crate::body::{Relief, Shape, maps::Map};
+use terrain::Terrain;
+
+use crate::body::Shape;
 use crate::brdf::Local;
 use crate::camera::Intrinsics;
 use crate::scene::{Pose, Scene};
 use glam::{DMat3, DVec3};
-use std::sync::Arc;
 
 /// One scene seen from one pose, ready to cast rays.
 pub struct Tracer<'a> {
@@ -226,135 +228,5 @@ fn surface_normal(shape: &Shape, p: DVec3) -> DVec3 {
     match shape {
         Shape::Sphere(_) => p.normalize(),
         Shape::Ellipsoid(_) => shape.surface(p.normalize()).1,
-    }
-}
-
-/// The terrain of a DEM as the ray caster sees it: the surface `r = R + h(lon, lat)`
-/// (bilinear heights), met by sphere tracing ([`Terrain::intersect`]), independently of the
-/// pipeline's fixed-step ray marching (a quarter texel, which a grazing ray can skip through).
-struct Terrain {
-    heights: Arc<Map>,
-    radius_m: f64,
-    top_m: f64,
-    /// The steepest slope between neighbouring texels anywhere (tan of its angle): a ray
-    /// rising more steeply than this cannot be blocked.
-    max_slope: f64,
-    /// The shortest step of the sphere tracing: a hundredth of a texel [m].
-    min_step_m: f64,
-}
-
-impl Terrain {
-    fn new(relief: &Relief) -> Terrain {
-        let map = relief.heights_m.clone();
-        let r0 = relief.reference_radius_m();
-        let (dlon, dlat) = map.spacing_rad();
-        let (w, h) = (map.width, map.height);
-        let v = |r: usize, c: usize| map.values[r * w + c] as f64;
-        let (mut top, mut max_slope) = (f64::MIN, 0.0f64);
-        for r in 0..h {
-            let arc_e = r0 * map.row_lat(r).cos().abs().max(1e-9) * dlon;
-            for c in 0..w {
-                let here = v(r, c);
-                top = top.max(here);
-                if c + 1 < w || map.wraps() {
-                    let east = v(r, (c + 1) % w);
-                    max_slope = max_slope.max((east - here).abs() / arc_e);
-                }
-                if r + 1 < h {
-                    max_slope = max_slope.max((v(r + 1, c) - here).abs() / (r0 * dlat));
-                }
-            }
-        }
-        Terrain {
-            min_step_m: 1e-2 * r0 * dlat,
-            heights: map,
-            radius_m: r0,
-            top_m: top.max(0.0),
-            // Both slopes at once (the gradient's length) bound any direction's.
-            max_slope: max_slope * std::f64::consts::SQRT_2,
-        }
-    }
-
-    fn height_at(&self, p: DVec3) -> Option<f64> {
-        let (lon, lat) = crate::geometry::lon_lat(p);
-        self.heights.sample(lon, lat)
-    }
-
-    /// The first `t > t0` where the ray `origin + t dir` (`dir` unit) is below the terrain
-    /// `r = R + h`, by sphere tracing: where the ray is `g` above the ground, the ground cannot
-    /// come nearer than `g / (1 + s)` along it (`s` the steepest slope: the height rises at
-    /// most `s` per metre and the ray's radius falls at most 1 per metre), so that is the
-    /// step, but at least a hundredth of a texel (a ridge thinner than that along the ray may
-    /// be skipped by a ray grazing it; where the step overshoots below the ground, the
-    /// crossing is found by bisection). A ray still above the ground after `MAX_STEPS` steps
-    /// counts as meeting it.
-    fn intersect(&self, origin: DVec3, dir: DVec3, t0: f64) -> Option<f64> {
-        const MAX_STEPS: usize = 1_000_000;
-        let ceiling = self.radius_m + self.top_m;
-        let b = origin.dot(dir);
-        let disc = b * b - (origin.length_squared() - ceiling * ceiling);
-        if disc < 0.0 {
-            return None;
-        }
-        let (t_in, t_out) = (-b - disc.sqrt(), -b + disc.sqrt());
-        if t_out <= t0 {
-            return None;
-        }
-        let hit_within = 1e-9 * self.radius_m;
-        let rate = 1.0 + self.max_slope;
-        let gap = |t: f64| {
-            let q = origin + dir * t;
-            let r = q.length();
-            r - self.radius_m - self.height_at(q / r).unwrap_or(0.0)
-        };
-        let mut t = t_in.max(t0);
-        let mut g = gap(t);
-        for _ in 0..MAX_STEPS {
-            if g <= hit_within {
-                return Some(t);
-            }
-            let next = t + (g / rate).max(self.min_step_m);
-            let g_next = gap(next);
-            if g_next < 0.0 {
-                // Overshot (a minimal step): the crossing lies between.
-                let (mut lo, mut hi) = (t, next);
-                for _ in 0..60 {
-                    let mid = 0.5 * (lo + hi);
-                    if gap(mid) > 0.0 {
-                        lo = mid;
-                    } else {
-                        hi = mid;
-                    }
-                    if hi - lo < hit_within {
-                        break;
-                    }
-                }
-                return Some(hi);
-            }
-            if next > t_out {
-                return None;
-            }
-            (t, g) = (next, g_next);
-        }
-        Some(t)
-    }
-
-    /// Whether the terrain hides direction `toward` (unit) from the surface point over the
-    /// unit direction `up`. On a displaced surface the ray starts on it; on an undisplaced one
-    /// (the DEM tilts the normals only) it starts at the terrain's height there, as the DEM
-    /// says the ground lies.
-    fn shadowed(&self, up: DVec3, toward: DVec3, displaced: bool) -> bool {
-        let rise = toward.dot(up);
-        let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
-        if rise > 0.0 && rise >= self.max_slope * horizontal {
-            return false;
-        }
-        if rise <= 0.0 && !displaced {
-            return false; // the BRDF's cosine on the sphere already says so
-        }
-        let h0 = self.height_at(up).unwrap_or(0.0);
-        // Clear of the ground it starts on: a thousand times the hit tolerance above it.
-        let start = up * (self.radius_m + h0 + 1e-6 * self.radius_m);
-        self.intersect(start, toward, 0.0).is_some()
     }
 }

@@ -33,7 +33,7 @@
 
 use super::pruning::{BOUNDARY, PRUNED};
 use super::sampling::GridTrig;
-use super::settings::Integration;
+use super::settings::{Integration, MapFilter};
 use super::view::View;
 use crate::body::LitVisible;
 use crate::body::{AlbedoMap, Body};
@@ -415,6 +415,7 @@ pub fn integrate(
     keep: &[u8],
     brdf: &Brdf,
     albedo: Option<&AlbedoMap>,
+    map_filter: MapFilter,
     method: Method,
     boundary_nodes: usize,
     points_per_px: f64,
@@ -452,13 +453,21 @@ pub fn integrate(
                 if class == PRUNED {
                     continue;
                 }
-                // With an albedo map the BRDF's scale is the map's at the quadrangle's centre
-                // (paper Sec. 4.4: maps sampled per quadrangle, constant over it).
+                // With an albedo map the BRDF's scale is constant over the quadrangle (paper
+                // Sec. 4.4): the map's at its centre, or its mean over the quadrangle (whose
+                // side is the square root of its area on the unit sphere).
                 let local;
                 let brdf = match albedo {
                     Some(a) => {
                         let n_body = view.body_dir(trig.mid_dir(i, k));
-                        local = brdf.with_scale(a.scale_at(n_body, brdf.scale()));
+                        let scale = match map_filter {
+                            MapFilter::Point => a.scale_at(n_body, brdf.scale()),
+                            MapFilter::Area => {
+                                let side = ((trig.lon[i + 1] - trig.lon[i]) * area_lat).sqrt();
+                                a.scale_over(n_body, side, brdf.scale())
+                            }
+                        };
+                        local = brdf.with_scale(scale);
                         &local
                     }
                     None => brdf,

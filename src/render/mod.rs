@@ -28,7 +28,7 @@ use pruning::{INTERIOR, PRUNED};
 use rayon::prelude::*;
 use sampling::GridTrig;
 use serde::Serialize;
-pub use settings::{FovShape, Integration, PointBudget, Sampling, Settings, Split};
+pub use settings::{FovShape, Integration, MapFilter, PointBudget, Sampling, Settings, Split};
 use std::time::Instant;
 use view::View;
 
@@ -341,6 +341,7 @@ fn render_in_pool(
             &buf.keep,
             &scene.body.brdf,
             scene.body.albedo_map.as_ref(),
+            settings.map_filter,
             method,
             settings.boundary_nodes as usize,
             settings.trapezoid_points_per_px,

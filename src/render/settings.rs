@@ -76,6 +76,19 @@ pub enum SelfShadowing {
     HorizonMap,
 }
 
+/// How a quadrangle reads the albedo map (paper Sec. 4.4 samples it at the centre).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MapFilter {
+    /// The map's value at the quadrangle's centre (bilinear between texels): aliases once a
+    /// quadrangle spans several texels.
+    Point,
+    /// The mean over the quadrangle, from the map's area-averaged levels
+    /// ([`crate::body::AlbedoMap::scale_over`]); the point value while a quadrangle is no
+    /// wider than a texel.
+    Area,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Settings {
     pub points: PointBudget,
@@ -110,6 +123,8 @@ pub struct Settings {
     /// (off by default; ray marching costs about a micro-second per point in the terminator
     /// and limb bands, the horizon map one lookup).
     pub self_shadowing: SelfShadowing,
+    /// How quadrangles read the albedo map.
+    pub map_filter: MapFilter,
 }
 
 impl Default for Settings {
@@ -138,6 +153,7 @@ impl Default for Settings {
             bounding_tolerance_rad: 1e-7,
             depth: false,
             self_shadowing: SelfShadowing::Off,
+            map_filter: MapFilter::Area,
         }
     }
 }

@@ -17,7 +17,7 @@
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: view (the CSF, and the grid's space: the CSF, or an ellipsoid's parameter space), bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`raycast`] | per-pixel ray casting, the sibling of the quadrangle pipeline: what a line of sight meets and brings back (shapes, DEM with its own shadow marching, maps, BRDFs), and the converged reference of any scene by adaptive cubature over each pixel's footprint, with its own error estimate |
-//! | [`fidelity`] | a frame's error against the converged reference (total; median, p95, p99 per lit pixel; SSIM): what the sweep charts and budgets are written in |
+//! | [`fidelity`] | a frame's error against the converged reference (total; median, p95, p99 per lit pixel; SSIM): what the sweep charts and budgets are written in; the budget planner (`fidelity = "budget"`): per frame, what it shows (probe rays, the maps' contrast) and the cheapest rung of a settings ladder an error model fitted by the sweep predicts to meet the budget |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
 //! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
 //! | [`pipeline`] | one pose's way to the screen: render -> signal -> stimulator -> simulated camera, timed per stage |
@@ -26,7 +26,7 @@
 //! | [`io`] | FITS and PNG outputs (in memory too), grayscale PNG input (photographs), SHA-256 content hashes |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
-//! | [`app`] | the commands behind the binary: `render` (the quadrangle pipeline or `--reference`), `sweep` (the speed-accuracy front and its chart), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
+//! | [`app`] | the commands behind the binary: `render` (the quadrangle pipeline or `--reference`), `sweep` (the speed-accuracy front and its chart; `--fit` the planner's error model), `verify-budget` (the planner against the reference over a pose stream), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
 //!
 //! # Data flow of one frame
 //!
@@ -43,7 +43,10 @@
 //!
 //!   raycast::reference::render(scene, pose) ─► the converged Frame (+ its error per pixel)
 //!   fidelity::metrics::frame_error(frame, reference) ─► total, median / p95 / p99, SSIM
-//!     (app::sweep: scenes x settings → sweep.csv, front.png / front.svg;
+//!   fidelity::budget::Planner::plan(scene, pose) ─► Settings + predicted error, per frame
+//!     (pipeline::FrameMaker, app::render, app::bench with fidelity = "budget"; reported in
+//!      the JSON line, FITS headers, bench rows, the daemon's ack and /status)
+//!     (app::sweep: scenes x settings → sweep.csv, front.png / front.svg, --fit the model;
 //!      app::stability: the hard cases → docs/stability.md)
 //!                                        │ signal [e-/s]
 //!   stimulator: F_eff = k·S (Eq. 60) → screen region (collimator) → calibration⁻¹ (+ dither)

@@ -44,6 +44,35 @@ enum Command {
         /// Output folder (references are cached in DIR/references).
         #[arg(long, default_value = "out/sweep")]
         out: PathBuf,
+        /// Also fit the fidelity planner's error model on the sweep's ladder rows and write
+        /// it here (config/error_model.toml is the shipped one).
+        #[arg(long)]
+        fit: Option<PathBuf>,
+    },
+    /// The fidelity planner checked over a pose stream: N frames spread over it, each as
+    /// `fidelity = "budget"` plans it and at every fixed rung of its ladder, against the
+    /// converged reference; writes DIR/frames.csv and prints the summary.
+    VerifyBudget {
+        /// Pose stream (CSV, as `bench`).
+        trajectory: PathBuf,
+        /// Scene file (its [render.budget], or the default budget).
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long, default_value_t = 50)]
+        frames: usize,
+        #[arg(long, default_value = "out/verify-budget")]
+        out: PathBuf,
+        /// The reference's relative tolerance per pixel.
+        #[arg(long, default_value_t = 1e-5)]
+        tolerance: f64,
+        #[arg(long, default_value_t = 8)]
+        max_depth: u32,
+    },
+    /// Fits the fidelity planner's error model on a sweep's ladder rows (its sweep.csv).
+    FitModel {
+        csv: PathBuf,
+        #[arg(long, default_value = "config/error_model.toml")]
+        out: PathBuf,
     },
     /// The stability suite: the renderer where methods fail (extreme ranges and phases, the
     /// body cut or behind the camera, degenerate poses, broken maps, DEM cliffs, extreme Hapke,
@@ -233,9 +262,45 @@ fn run() -> anyhow::Result<()> {
             }
             let _ = std::fs::remove_dir_all(&work);
         }
-        Command::Sweep { sweep, out } => {
-            let report = app::sweep::run(&sweep, &out, |line| eprintln!("{line}"))?;
+        Command::Sweep { sweep, out, fit } => {
+            let report = app::sweep::run(&sweep, &out, fit.as_deref(), |line| eprintln!("{line}"))?;
             println!("{}", serde_json::to_string(&report)?);
+        }
+        Command::VerifyBudget {
+            trajectory,
+            scene,
+            frames,
+            out,
+            tolerance,
+            max_depth,
+        } => {
+            let cfg = config::load(&scene)?;
+            let reference = optistim::raycast::reference::ReferenceSettings {
+                tolerance,
+                max_depth,
+                ..Default::default()
+            };
+            let report = app::verify_budget::run(
+                &cfg,
+                &scene.display().to_string(),
+                &trajectory,
+                frames,
+                &reference,
+                &out,
+                |line| eprintln!("{line}"),
+            )?;
+            println!("{}", serde_json::to_string(&report)?);
+        }
+        Command::FitModel { csv, out } => {
+            let m = app::sweep::fit_csv(&csv)?;
+            let how = format!(
+                "optistim fit-model {} --out {}",
+                csv.display(),
+                out.display()
+            );
+            std::fs::write(&out, app::sweep::model_text(&m, &how))
+                .with_context(|| format!("{}", out.display()))?;
+            println!("{}", serde_json::to_string(&m)?);
         }
         Command::Compare {
             scene,

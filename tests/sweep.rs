@@ -58,9 +58,10 @@ fn a_sweep_measures_every_setting_against_the_reference_and_charts_the_front() {
     std::fs::write(dir.join("sweep.toml"), SWEEP).unwrap();
     let out = dir.join("out");
     let mut lines = Vec::new();
-    let report =
-        optistim::app::sweep::run(&dir.join("sweep.toml"), &out, |l| lines.push(l.to_string()))
-            .unwrap();
+    let report = optistim::app::sweep::run(&dir.join("sweep.toml"), &out, None, |l| {
+        lines.push(l.to_string())
+    })
+    .unwrap();
     assert_eq!(report.rows, 8);
     assert!(report.scenes.iter().all(|s| !s.reference_reused));
     let mut csv = csv::Reader::from_path(out.join("sweep.csv")).unwrap();
@@ -106,7 +107,7 @@ fn a_sweep_measures_every_setting_against_the_reference_and_charts_the_front() {
     assert!(svg.contains("Peer") && svg.contains("Pareto front") && svg.contains("far half"));
 
     // Run again: the references come from the cache, the figures are the same.
-    let again = optistim::app::sweep::run(&dir.join("sweep.toml"), &out, |_| {}).unwrap();
+    let again = optistim::app::sweep::run(&dir.join("sweep.toml"), &out, None, |_| {}).unwrap();
     assert!(again.scenes.iter().all(|s| s.reference_reused));
     let mut csv2 = csv::Reader::from_path(out.join("sweep.csv")).unwrap();
     let rows2: Vec<csv::StringRecord> = csv2.records().map(|r| r.unwrap()).collect();

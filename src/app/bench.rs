@@ -47,6 +47,10 @@ pub struct FrameRow {
     /// The renderer's stages [ms].
     pub timings_ms: crate::render::StageTimings,
     pub detector_ms: f64,
+    /// With `fidelity = "budget"`: the settings chosen and the error predicted (the frame's
+    /// `ms` includes the planning).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<crate::fidelity::budget::Plan>,
 }
 
 /// Renders up to `max_frames` poses of `trajectory` (default: the scene's own pose, 20 times)
@@ -73,6 +77,7 @@ pub fn run(
     };
     let n = max_frames.unwrap_or(usize::MAX).min(poses.len());
     let mut renderer = Renderer::new(config.settings.threads)?;
+    let planner = config.planner();
     let det = &config.scene.camera.detector;
     let k = det.signal_factor(&config.scene.sun);
     let mut dn = Vec::new();
@@ -81,7 +86,9 @@ pub fn run(
     let mut stage_sum = serde_json::Map::new();
     for (t_s, pose) in poses.iter().take(n) {
         let t0 = Instant::now();
-        let frame = renderer.render(&config.scene, pose, &config.settings)?;
+        let plan = planner.as_ref().map(|p| p.plan(&config.scene, pose));
+        let settings = plan.as_ref().map_or(&config.settings, |p| &p.settings);
+        let frame = renderer.render(&config.scene, pose, settings)?;
         let td = Instant::now();
         let signal = det.signal(&frame.pl, k);
         det.expose(&signal, (frame.width, frame.height), pose.frame_id, &mut dn);
@@ -108,6 +115,7 @@ pub fn run(
             covered_px: frame.stats.covered_px,
             timings_ms: frame.stats.timings_ms,
             detector_ms,
+            fidelity: plan,
         });
         times.push((ms, pose.frame_id));
         points.push(frame.stats.points_kept);

@@ -8,6 +8,7 @@ pub mod replay;
 pub mod show;
 pub mod stability;
 pub mod sweep;
+pub mod verify_budget;
 
 #[derive(Debug, thiserror::Error)]
 pub enum AppError {

@@ -3,6 +3,7 @@
 
 use super::AppError;
 use crate::config::Config;
+use crate::fidelity::budget::Plan;
 use crate::io::fits::{self, Bitpix, Card, Value};
 use crate::raycast::reference::{self, ReferenceReport, ReferenceSettings};
 use crate::render::{FrameStats, Renderer};
@@ -33,6 +34,9 @@ pub struct RenderSummary {
     /// With a `[stimulator]` section: the screen frame's report.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stimulator: Option<StimulatorSummary>,
+    /// With `fidelity = "budget"`: the settings chosen and the error predicted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<Plan>,
 }
 
 #[derive(Debug, Serialize)]
@@ -69,9 +73,15 @@ pub fn run(
         path: out.display().to_string(),
         source,
     })?;
+    let mut plan = None;
     let (frame, reference) = match method {
         Method::Quadrangle => {
-            let mut settings = config.settings.clone();
+            plan = config
+                .planner()
+                .map(|p| p.plan(&config.scene, &config.pose));
+            let mut settings = plan
+                .as_ref()
+                .map_or_else(|| config.settings.clone(), |p| p.settings.clone());
             settings.depth = true;
             let mut renderer = Renderer::new(settings.threads)?;
             (
@@ -95,7 +105,10 @@ pub fn run(
     let detector_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let t0 = Instant::now();
-    let cards = header(config, &frame.stats, radiance, k_signal);
+    let mut cards = header(config, &frame.stats, radiance, k_signal);
+    if let Some(p) = &plan {
+        cards.extend(plan_cards(p));
+    }
     let with = |unit: &str, what: &str| {
         let mut c = vec![Card::new("BUNIT", Value::Str(unit.into()), what)];
         c.extend(cards.iter().cloned());
@@ -191,7 +204,54 @@ pub fn run(
         timings_ms: timings,
         reference: reference.map(|r| r.1),
         stimulator,
+        fidelity: plan,
     })
+}
+
+/// The FITS cards of a budgeted frame: what the planner chose and the error it predicts.
+pub fn plan_cards(p: &Plan) -> Vec<Card> {
+    let f = |k: &str, v: f64, c: &str| Card::new(k, Value::Float(v), c);
+    let shadows = serde_json::to_value(p.self_shadowing)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default();
+    vec![
+        Card::new(
+            "FIDELITY",
+            Value::Str("budget".into()),
+            "settings chosen per frame",
+        ),
+        f("PPP", p.points_per_pixel, "chosen: quadrangles per pixel"),
+        Card::new(
+            "BNODES",
+            Value::Int(p.boundary_nodes as i64),
+            "chosen: boundary Gauss nodes",
+        ),
+        Card::new("SHADOWS", Value::Str(shadows), "chosen: self-shadowing"),
+        f(
+            "PREDMED",
+            p.predicted.median,
+            "predicted median rel. error/lit px",
+        ),
+        f(
+            "PREDP99",
+            p.predicted.p99,
+            "predicted p99 rel. error/lit px",
+        ),
+        f("PREDTOT", p.predicted.total, "predicted total rel. error"),
+        f(
+            "BUDMED",
+            p.budget.median,
+            "budget: median rel. error/lit px",
+        ),
+        f("BUDP99", p.budget.p99, "budget: p99 rel. error/lit px"),
+        f("BUDTOT", p.budget.total, "budget: total rel. error"),
+        Card::new(
+            "BUDMET",
+            Value::Bool(p.meets_budget),
+            "predicted to meet the budget",
+        ),
+    ]
 }
 
 fn header(config: &Config, stats: &FrameStats, radiance: f64, k_signal: f64) -> Vec<Card> {

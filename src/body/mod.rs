@@ -519,6 +519,31 @@ impl Relief {
         self.radius_m
     }
 
+    /// What the slopes look like, for the fidelity planner: the mean change of slope between
+    /// neighbouring texels (east and north together, unitless) and the 99th percentile of
+    /// the slope's magnitude (tan of its angle).
+    pub fn slope_statistics(&self) -> (f64, f64) {
+        let (e, n) = (&self.slope_east.values, &self.slope_north.values);
+        let w = self.slope_east.width;
+        let (mut sum, mut count) = (0.0, 0usize);
+        let mut mags: Vec<f64> = Vec::with_capacity(e.len() / 16 + 1);
+        for i in 0..e.len() {
+            if i % w + 1 < w {
+                sum += ((e[i + 1] - e[i]).abs() + (n[i + 1] - n[i]).abs()) as f64;
+                count += 1;
+            }
+            if i % 16 == 0 {
+                mags.push((e[i] as f64).hypot(n[i] as f64));
+            }
+        }
+        let p99 = if mags.is_empty() {
+            0.0
+        } else {
+            crate::stats::quantiles(&mut mags, [0.99])[0]
+        };
+        (sum / count.max(1) as f64, p99)
+    }
+
     /// Whether the DEM displaces the surface (else it only tilts the normals).
     pub fn displaces(&self) -> bool {
         self.displaces
@@ -567,6 +592,26 @@ impl AlbedoMap {
             scale_per_value,
             levels: std::sync::Arc::new(levels),
         }
+    }
+
+    /// The mean relative change between neighbouring texels (in longitude) at each level,
+    /// the map's first: how much a pixel spanning `2^k` texels differs from the next.
+    pub fn contrast_by_level(&self) -> Vec<f64> {
+        std::iter::once(&*self.map)
+            .chain(self.levels.iter())
+            .map(|m| {
+                let mean = m.mean().abs().max(1e-30);
+                let w = m.width;
+                let (mut s, mut n) = (0.0, 0usize);
+                for (i, pair) in m.values.windows(2).enumerate() {
+                    if i % w + 1 < w {
+                        s += (pair[1] - pair[0]).abs() as f64;
+                        n += 1;
+                    }
+                }
+                s / n.max(1) as f64 / mean
+            })
+            .collect()
     }
 
     /// The BRDF scale at the body-frame unit direction `n_body`, or `fallback` outside the map.

@@ -54,6 +54,25 @@ pub struct Config {
     pub power_band_m: Option<(f64, f64)>,
     /// The `[stimulator]` section, when there is one.
     pub stimulator: Option<StimulatorConfig>,
+    /// `[render] fidelity = "budget"`: the budget and the error model the planner meets it
+    /// with (`None`: the settings above for every frame).
+    pub fidelity: Option<BudgetFidelity>,
+}
+
+/// Error-budgeted fidelity ([`crate::fidelity::budget`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BudgetFidelity {
+    pub budget: crate::fidelity::budget::Budget,
+    pub model: crate::fidelity::budget::ErrorModel,
+}
+
+impl Config {
+    /// The frame planner of `fidelity = "budget"` (`None` for fixed settings).
+    pub fn planner(&self) -> Option<crate::fidelity::budget::Planner> {
+        self.fidelity.as_ref().map(|f| {
+            crate::fidelity::budget::Planner::new(&self.scene, &self.settings, f.budget, f.model)
+        })
+    }
 }
 
 /// Reads and validates a scene file.
@@ -180,13 +199,62 @@ impl Validator<'_> {
             Some(st) => Some(self.stimulator(st, &camera.intrinsics)?),
             None => None,
         };
+        let fidelity = self.fidelity(&raw.render)?;
         Ok(Config {
             scene: Scene { sun, body, camera },
             pose,
             settings,
             power_band_m,
             stimulator,
+            fidelity,
         })
+    }
+
+    /// `[render] fidelity` and `[render.budget]`.
+    fn fidelity(&self, r: &RawRender) -> R<Option<BudgetFidelity>> {
+        use crate::fidelity::budget::{Budget, ErrorModel};
+        let budget_mode = match r.fidelity.as_deref() {
+            None => false,
+            Some(v) => self.pick("render.fidelity", v, &[("fixed", false), ("budget", true)])?,
+        };
+        if !budget_mode {
+            if r.budget.is_some() {
+                return self.err(
+                    "render.budget",
+                    "a table",
+                    "only with render.fidelity = \"budget\"",
+                );
+            }
+            return Ok(None);
+        }
+        let d = Budget::default();
+        let raw = r.budget.as_ref();
+        let figure = |key: &str, v: Option<f64>, default: f64| match v {
+            Some(x) => self.in_range(key, x, 1e-12, 1.0),
+            None => Ok(default),
+        };
+        let budget = Budget {
+            median: figure("render.budget.median", raw.and_then(|b| b.median), d.median)?,
+            p99: figure("render.budget.p99", raw.and_then(|b| b.p99), d.p99)?,
+            total: figure("render.budget.total", raw.and_then(|b| b.total), d.total)?,
+        };
+        let model = match raw.and_then(|b| b.model.as_deref()) {
+            None => ErrorModel::shipped(),
+            Some(m) => {
+                let path = self.path(m);
+                match std::fs::read_to_string(&path) {
+                    Ok(text) => ErrorModel::parse(&text, &path.display().to_string()),
+                    Err(e) => return self.err("render.budget.model", m, &e.to_string()),
+                }
+            }
+        }
+        .map_err(|e| ConfigError::Invalid {
+            file: self.file.to_string(),
+            key: "render.budget.model".into(),
+            value: "the error model".into(),
+            allowed: e.to_string(),
+        })?;
+        Ok(Some(BudgetFidelity { budget, model }))
     }
 
     /// A path in the file, relative to the file's folder (`join` keeps an absolute one).

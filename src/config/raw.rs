@@ -209,6 +209,21 @@ pub struct RawRender {
     pub depth: Option<bool>,
     pub self_shadowing: Option<String>,
     pub map_filter: Option<String>,
+    /// `fixed` (default: these settings for every frame) or `budget` (per frame, the
+    /// cheapest settings predicted to meet `[render.budget]`).
+    pub fidelity: Option<String>,
+    pub budget: Option<RawBudget>,
+}
+
+/// `[render.budget]`: relative errors per lit pixel and in total, and the error model.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawBudget {
+    pub median: Option<f64>,
+    pub p99: Option<f64>,
+    pub total: Option<f64>,
+    /// An error model fitted by `optistim sweep --fit` (default: the shipped one).
+    pub model: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -5,4 +5,5 @@
 //! - [`metrics`]: a frame's error against its reference (total, median / p95 / p99 per lit
 //!   pixel, SSIM), the figures the sweep charts and the budget is written in.
 
+pub mod budget;
 pub mod metrics;

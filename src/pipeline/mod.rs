@@ -5,6 +5,7 @@
 //! current curve, the simulated camera) and reports every stage's time with every frame.
 
 use crate::config::Config;
+use crate::fidelity::budget::{Plan, Planner};
 use crate::render::{FrameStats, RenderError, Renderer};
 use crate::scene::Pose;
 use crate::stimulator::calibration::Curve;
@@ -40,6 +41,8 @@ pub struct MadeFrame {
     /// inverted) the screen's DN.
     pub stimulator: Option<StimulatorFrame>,
     pub timings_ms: FrameTimings,
+    /// With `fidelity = "budget"`: the settings the planner chose and the error it predicts.
+    pub plan: Option<Plan>,
 }
 
 /// Per-scene state of the frame pipeline.
@@ -48,6 +51,7 @@ pub struct FrameMaker {
     renderer: Renderer,
     stimulator: Option<Stimulator>,
     camera: Option<Arc<SimulatedCamera>>,
+    planner: Option<Planner>,
 }
 
 impl FrameMaker {
@@ -66,6 +70,7 @@ impl FrameMaker {
             None => (None, None),
         };
         Ok(FrameMaker {
+            planner: config.planner(),
             renderer: Renderer::new(config.settings.threads)?,
             config: config.clone(),
             stimulator,
@@ -95,7 +100,9 @@ impl FrameMaker {
         let mut t = FrameTimings::default();
         let t0 = Instant::now();
         let cfg = &self.config;
-        let frame = self.renderer.render(&cfg.scene, pose, &cfg.settings)?;
+        let plan = self.planner.as_ref().map(|p| p.plan(&cfg.scene, pose));
+        let settings = plan.as_ref().map_or(&cfg.settings, |p| &p.settings);
+        let frame = self.renderer.render(&cfg.scene, pose, settings)?;
         t.render = ms(t0);
         let t0 = Instant::now();
         let det = &cfg.scene.camera.detector;
@@ -113,6 +120,7 @@ impl FrameMaker {
             stats: frame.stats,
             stimulator,
             timings_ms: t,
+            plan,
         })
     }
 
@@ -123,9 +131,11 @@ impl FrameMaker {
         }
     }
 
-    /// Replaces the render settings (accuracy and speed knobs) from the next frame on.
+    /// Replaces the render settings (accuracy and speed knobs) from the next frame on; with
+    /// `fidelity = "budget"` they are the base the planner's choices override.
     pub fn set_settings(&mut self, settings: crate::render::Settings) {
         self.config.settings = settings;
+        self.planner = self.config.planner();
     }
 }
 

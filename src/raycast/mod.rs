@@ -169,6 +169,17 @@ impl<'a> Tracer<'a> {
         !self.displaced
     }
 
+    /// Where the line of sight through pixel position `(u, v)` meets the undisplaced shape:
+    /// the point [m] and the shape's outward normal there (body frame). A cheap probe of what
+    /// a frame shows ([`crate::fidelity::budget`]).
+    pub fn shape_at(&self, u: f64, v: f64) -> Option<(DVec3, DVec3)> {
+        let (dir, _, _) = self.line_of_sight(u, v);
+        let shape = &self.scene.body.shape;
+        let t = shape.intersect(self.camera_m, dir)?;
+        let p = self.camera_m + dir * t;
+        Some((p, surface_normal(shape, p)))
+    }
+
     /// Casts the line of sight through pixel position `(u, v)`.
     #[inline]
     pub fn cast(&self, u: f64, v: f64) -> Hit {

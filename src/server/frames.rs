@@ -7,7 +7,7 @@
 //! beyond it the pose is refused as busy). With `hold`, a frame is rendered into the hold
 //! buffer and acked as held, and the next trigger presents it (a second ack).
 
-use super::protocol::{AckMsg, AckStatus, ErrorCode, Message, ProtocolError};
+use super::protocol::{AckFidelity, AckMsg, AckStatus, ErrorCode, Message, ProtocolError};
 use super::{Outbound, Shared};
 use crate::display::Presenter;
 use crate::display::window::{self, DisplayEvent, DisplaySender, Monitor, Presented};
@@ -314,6 +314,13 @@ impl FrameThread {
             }
         };
         let render_end = Instant::now();
+        if let Some(p) = &made.plan {
+            *self
+                .shared
+                .last_plan
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()) = Some((made.frame_id, p.clone()));
+        }
         if self.shared.runtime().hold {
             let held = Held {
                 job,
@@ -452,6 +459,7 @@ impl FrameThread {
             clipped_below_dark: clips.below_dark,
             clipped_above_max: clips.above_max,
             calibration_id,
+            fidelity: h.made.plan.as_ref().map(AckFidelity::of),
         }
     }
 

@@ -65,7 +65,24 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         .as_ref()
         .and_then(|r| r.dem_horizon.as_ref())
         .map(|h| json!({"computed_texels": h.computed_texels(), "texels": h.texels()}));
+    // Fixed settings, or the budget and what the planner chose for the latest frame.
+    let fidelity = match &scene.config.fidelity {
+        None => json!({"mode": "fixed"}),
+        Some(f) => {
+            let last = s
+                .last_plan
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .clone();
+            json!({
+                "mode": "budget",
+                "budget": f.budget,
+                "last_frame": last.map(|(id, p)| json!({"frame_id": id, "plan": p})),
+            })
+        }
+    };
     axum::Json(json!({
+        "fidelity": fidelity,
         "fps": fps,
         "latency_ms": {"p50": p50, "p99": p99, "max": max},
         "recent_latency_ms": recent,

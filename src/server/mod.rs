@@ -259,6 +259,8 @@ pub struct Shared {
     pub stats: Stats,
     runtime: Mutex<RuntimeConfig>,
     pub latest: Mutex<Option<Arc<ScreenImage>>>,
+    /// The fidelity planner's choice for the latest rendered frame (frame id, plan).
+    pub last_plan: Mutex<Option<(u64, crate::fidelity::budget::Plan)>>,
     /// The active curve's id and SHA-256.
     pub calibration: Mutex<(String, String)>,
     pub presenter: String,
@@ -510,6 +512,7 @@ impl Server {
                 scene: options.config_label.clone(),
             }),
             latest: Mutex::new(None),
+            last_plan: Mutex::new(None),
             calibration: Mutex::new((curve.id.clone(), curve.sha256.clone())),
             presenter: presenter.clone(),
             scene: Mutex::new(SceneState {

@@ -149,6 +149,42 @@ pub struct AckMsg {
     pub clipped_below_dark: u64,
     pub clipped_above_max: u64,
     pub calibration_id: String,
+    /// With `fidelity = "budget"`: what the planner chose for the frame and the error it
+    /// predicts (absent otherwise; in the binary payload, after the calibration id).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<AckFidelity>,
+}
+
+/// The fidelity planner's choice for one frame ([`crate::fidelity::budget::Plan`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AckFidelity {
+    pub points_per_pixel: f64,
+    pub boundary_nodes: u8,
+    /// 0 off, 1 ray marching, 2 horizon map.
+    pub self_shadowing: u8,
+    pub predicted_median: f64,
+    pub predicted_p99: f64,
+    pub predicted_total: f64,
+    pub meets_budget: bool,
+}
+
+impl AckFidelity {
+    pub fn of(p: &crate::fidelity::budget::Plan) -> AckFidelity {
+        use crate::render::settings::SelfShadowing;
+        AckFidelity {
+            points_per_pixel: p.points_per_pixel,
+            boundary_nodes: p.boundary_nodes.min(255) as u8,
+            self_shadowing: match p.self_shadowing {
+                SelfShadowing::Off => 0,
+                SelfShadowing::RayMarching => 1,
+                SelfShadowing::HorizonMap => 2,
+            },
+            predicted_median: p.predicted.median,
+            predicted_p99: p.predicted.p99,
+            predicted_total: p.predicted.total,
+            meets_budget: p.meets_budget,
+        }
+    }
 }
 
 impl AckMsg {
@@ -166,6 +202,7 @@ impl AckMsg {
             clipped_below_dark: 0,
             clipped_above_max: 0,
             calibration_id: String::new(),
+            fidelity: None,
         }
     }
 }
@@ -301,6 +338,15 @@ impl Message {
                     w.u64(c);
                 }
                 w.str(&a.calibration_id);
+                if let Some(f) = &a.fidelity {
+                    w.f64(f.points_per_pixel);
+                    w.u8(f.boundary_nodes);
+                    w.u8(f.self_shadowing);
+                    w.f64(f.predicted_median);
+                    w.f64(f.predicted_p99);
+                    w.f64(f.predicted_total);
+                    w.u8(u8::from(f.meets_budget));
+                }
             }
             Message::CameraFrame {
                 frame_id,
@@ -408,6 +454,19 @@ impl Message {
                     clipped_below_dark: r.u64()?,
                     clipped_above_max: r.u64()?,
                     calibration_id: r.str()?,
+                    fidelity: if r.i < payload.len() {
+                        Some(AckFidelity {
+                            points_per_pixel: r.f64()?,
+                            boundary_nodes: r.u8()?,
+                            self_shadowing: r.u8()?,
+                            predicted_median: r.f64()?,
+                            predicted_p99: r.f64()?,
+                            predicted_total: r.f64()?,
+                            meets_budget: r.u8()? != 0,
+                        })
+                    } else {
+                        None
+                    },
                 })
             }
             kind::CAMERA_FRAME => {
@@ -726,6 +785,29 @@ mod tests {
                 clipped_below_dark: 2,
                 clipped_above_max: 0,
                 calibration_id: "example".into(),
+                fidelity: None,
+            }),
+            Message::Ack(AckMsg {
+                frame_id: 8,
+                status: AckStatus::Held,
+                received_ns: 1,
+                render_start_ns: 2,
+                render_end_ns: 3,
+                presented_ns: 0,
+                render_ms: 40.0,
+                clipped_black: 0,
+                clipped_below_dark: 0,
+                clipped_above_max: 0,
+                calibration_id: "example".into(),
+                fidelity: Some(AckFidelity {
+                    points_per_pixel: 0.5,
+                    boundary_nodes: 4,
+                    self_shadowing: 2,
+                    predicted_median: 8e-4,
+                    predicted_p99: 1.2e-2,
+                    predicted_total: 3e-6,
+                    meets_budget: true,
+                }),
             }),
             Message::CameraFrame {
                 frame_id: 7,

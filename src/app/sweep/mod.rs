@@ -40,6 +40,7 @@ pub mod chart;
 
 use super::AppError;
 use crate::config::Config;
+use crate::fidelity::budget::{Budget, ErrorModel, Features, FitRow, Planner};
 use crate::fidelity::metrics::{FrameError, frame_error};
 use crate::raycast::reference::{self, ReferenceSettings};
 use crate::render::Renderer;
@@ -95,7 +96,7 @@ pub struct Peer {
 }
 
 /// One row of `sweep.csv`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Row {
     pub scene: String,
     pub setting: String,
@@ -119,10 +120,78 @@ pub struct Row {
     pub ref_est_p99: f64,
     /// Why the setting could not render this scene (then the figures are NaN).
     pub failure: String,
+    /// Quadrangles per pixel (NaN for a fixed count), and whether the setting is that rung of
+    /// the fidelity planner's ladder ([`crate::fidelity::budget::Planner::rung`]): the rows
+    /// `--fit` fits the error model on.
+    pub points_per_px: f64,
+    pub ladder: bool,
+    /// What the frame shows ([`crate::fidelity::budget::Features`]).
+    pub f_radius_px: f64,
+    pub f_lit_px: f64,
+    pub f_edge_px: f64,
+    pub f_phase_deg: f64,
+    pub f_footprint_texels: f64,
+    pub f_texture: f64,
+    pub f_shadow_share: f64,
+}
+
+impl Row {
+    /// The frame's features, as the planner computed them.
+    pub fn features(&self) -> Features {
+        Features {
+            radius_px: self.f_radius_px,
+            lit_px: self.f_lit_px,
+            edge_px: self.f_edge_px,
+            phase_deg: self.f_phase_deg,
+            range_m: f64::NAN,
+            footprint_texels: self.f_footprint_texels,
+            texture: self.f_texture,
+            shadow_share: self.f_shadow_share,
+        }
+    }
+}
+
+/// Fits the planner's error model on the ladder rows of a `sweep.csv`.
+pub fn fit_csv(csv_path: &Path) -> Result<ErrorModel, AppError> {
+    let mut r = csv::Reader::from_path(csv_path).map_err(|e| bad(csv_path, e))?;
+    let rows: Vec<Row> = r
+        .deserialize()
+        .collect::<Result<_, _>>()
+        .map_err(|e| bad(csv_path, e))?;
+    fit(&rows)
+}
+
+/// The model file's text: a header saying how it was made, then the model.
+pub fn model_text(m: &ErrorModel, how: &str) -> String {
+    format!(
+        "# The fidelity planner's error model (src/fidelity/budget.rs), fitted by\n\
+         #   {how}\n\
+         # on {} ladder frames: ln e = ln margin + k . (1, ln p, ln(texture + 1e-4), ln(edge_share + 1e-3)).\n\n{}",
+        m.frames,
+        m.to_toml()
+    )
+}
+
+/// Fits the planner's error model on the ladder rows of `rows` that rendered.
+pub fn fit(rows: &[Row]) -> Result<ErrorModel, AppError> {
+    let fit_rows: Vec<FitRow> = rows
+        .iter()
+        .filter(|r| r.ladder && r.failure.is_empty())
+        .map(|r| FitRow {
+            points_per_px: r.points_per_px,
+            features: r.features(),
+            median: r.err_median,
+            p99: r.err_p99,
+            total: r.err_total,
+        })
+        .collect();
+    ErrorModel::fit(&fit_rows).map_err(|e| AppError::Sweep(e.to_string()))
 }
 
 #[derive(Debug, Serialize)]
 pub struct SweepReport {
+    /// The error model fitted (with `--fit`).
+    pub model: Option<ErrorModel>,
     pub rows: usize,
     pub scenes: Vec<SceneSummary>,
     pub csv: String,
@@ -239,17 +308,30 @@ fn reference_of(
     settings: &ReferenceSettings,
     dir: &Path,
 ) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
-    let p = &scene.config.pose;
+    let c = &scene.config;
+    cached_reference(&scene.text, &c.scene, &c.pose, settings, dir)
+}
+
+/// The reference of `scene` from `pose`, from the cache in `dir` (keyed by the SHA-256 of
+/// `text`, the scene file's text, the pose and the settings) or rendered and cached:
+/// `(image, seconds it took, its estimated total error, its estimated p99, reused)`.
+pub fn cached_reference(
+    text: &str,
+    scene: &crate::scene::Scene,
+    p: &crate::scene::Pose,
+    settings: &ReferenceSettings,
+    dir: &Path,
+) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
     let key = crate::io::sha256_hex(
         format!(
             "{}\n{:?} {:?} {:?}\n{:?}",
-            scene.text, p.camera_position_m, p.body_from_camera, p.sun_position_m, settings
+            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, settings
         )
         .as_bytes(),
     );
     let file = dir.join(format!("{}.f64", &key[..16]));
     let n = {
-        let i = &scene.config.scene.camera.intrinsics;
+        let i = &scene.camera.intrinsics;
         (i.width_px * i.height_px) as usize
     };
     if let Ok(bytes) = std::fs::read(&file)
@@ -261,7 +343,7 @@ fn reference_of(
             .collect();
         return Ok((v[3..].to_vec(), v[0], v[1], v[2], true));
     }
-    let r = reference::render(&scene.config.scene, p, settings)?;
+    let r = reference::render(scene, p, settings)?;
     let head = [
         r.report.seconds,
         r.report.est_error_total,
@@ -310,6 +392,7 @@ pub fn mark_front(rows: &mut [Row]) {
 pub fn run(
     file: &Path,
     out: &Path,
+    fit_to: Option<&Path>,
     mut progress: impl FnMut(&str),
 ) -> Result<SweepReport, AppError> {
     let text = std::fs::read_to_string(file).map_err(|e| bad(file, e))?;
@@ -345,6 +428,12 @@ pub fn run(
             .iter()
             .map(|s| with_setting(&scene, &s.render).map_err(|e| e.to_string()))
             .collect();
+        let features = {
+            let model = ErrorModel::shipped().map_err(|e| AppError::Sweep(e.to_string()))?;
+            let c = &scene.config;
+            Planner::new(&c.scene, &c.settings, Budget::default(), model)
+                .features(&c.scene, &c.pose)
+        };
         let mut renderer = Renderer::new(scene.config.settings.threads)?;
         let mut times = vec![Vec::new(); configs.len()];
         let mut frames: Vec<Option<Result<crate::render::Frame, String>>> =
@@ -397,7 +486,25 @@ pub fn run(
             } else {
                 [f64::NAN; 2]
             };
+            let (points_per_px, ladder) = match &configs[k] {
+                Ok(c) => match c.settings.points {
+                    crate::render::PointBudget::PerPixel(p) => {
+                        (p, c.settings == Planner::rung(&c.settings, p))
+                    }
+                    _ => (f64::NAN, false),
+                },
+                Err(_) => (f64::NAN, false),
+            };
             let row = Row {
+                points_per_px,
+                ladder,
+                f_radius_px: features.radius_px,
+                f_lit_px: features.lit_px,
+                f_edge_px: features.edge_px,
+                f_phase_deg: features.phase_deg,
+                f_footprint_texels: features.footprint_texels,
+                f_texture: features.texture,
+                f_shadow_share: features.shadow_share,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,
@@ -469,7 +576,20 @@ pub fn run(
     w.flush().map_err(|e| bad(&csv_path, e))?;
     let charts: Vec<PathBuf> = vec![out.join("front.png"), out.join("front.svg")];
     chart::draw(&panels, &charts[0], &charts[1]).map_err(|e| bad(&charts[0], e))?;
+    let model = match fit_to {
+        Some(path) => {
+            let m = fit(&rows)?;
+            let text = model_text(
+                &m,
+                &format!("optistim sweep {} --fit {}", file.display(), path.display()),
+            );
+            std::fs::write(path, text).map_err(|e| bad(path, e))?;
+            Some(m)
+        }
+        None => None,
+    };
     Ok(SweepReport {
+        model,
         rows: rows.len(),
         scenes,
         csv: csv_path.display().to_string(),

@@ -1,0 +1,221 @@
+//! `optistim verify-budget TRAJECTORY --scene FILE --frames N --out DIR`: the fidelity
+//! planner checked against the converged reference over a pose stream.
+//!
+//! For `N` frames spread evenly over the whole stream it renders
+//! - the frame as `fidelity = "budget"` plans it (the planning timed with it),
+//! - every rung of the planner's ladder as a fixed setting (with the scene's own shadows),
+//! - the reference ([`crate::raycast::reference`], cached in `DIR/references`),
+//!
+//! and writes `frames.csv` (per frame: the plan, its prediction, its measured error and time,
+//! and each rung's error and time) and a summary: the share of frames whose measured error
+//! meets the budget (p99 and total, and median), the cheapest fixed rung that meets it on
+//! every frame, and the planner's speed-up over that rung (median and slowest frame).
+
+use super::AppError;
+use crate::config::Config;
+use crate::fidelity::budget::{Budget, LADDER, Planner};
+use crate::fidelity::metrics::{FrameError, frame_error};
+use crate::raycast::reference::ReferenceSettings;
+use crate::render::Renderer;
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+/// One frame of the check.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameCheck {
+    pub row: usize,
+    pub frame_id: u64,
+    pub range_m: f64,
+    pub phase_deg: f64,
+    pub points_per_pixel: f64,
+    pub self_shadowing: String,
+    pub predicted_median: f64,
+    pub predicted_p99: f64,
+    pub predicted_total: f64,
+    pub median: f64,
+    pub p99: f64,
+    pub total: f64,
+    pub meets_budget: bool,
+    pub budget_ms: f64,
+    pub reference_s: f64,
+    pub reference_est_p99: f64,
+    /// Per rung of the ladder: time [ms] and whether it met the budget.
+    pub rung_ms: String,
+    pub rung_meets: String,
+}
+
+#[derive(Debug, Serialize)]
+pub struct VerifyReport {
+    pub trajectory: String,
+    pub scene: String,
+    pub frames: usize,
+    pub budget: Budget,
+    /// Shares of frames whose measured error meets the budget.
+    pub share_meeting_p99_and_total: f64,
+    pub share_meeting_all: f64,
+    pub share_predicted_to_meet: f64,
+    pub budget_median_ms: f64,
+    pub budget_max_ms: f64,
+    /// The cheapest rung meeting the budget on every frame (`None`: no rung does).
+    pub fixed_rung_points_per_pixel: Option<f64>,
+    pub fixed_median_ms: f64,
+    pub fixed_max_ms: f64,
+    pub speedup_median: f64,
+    pub speedup_slowest: f64,
+    pub csv: String,
+}
+
+fn meets(e: &FrameError, b: &Budget) -> (bool, bool) {
+    let tails = e.p99 <= b.p99 && e.total <= b.total;
+    (tails, tails && e.median <= b.median)
+}
+
+/// Runs the check; `progress` hears one line per frame.
+pub fn run(
+    config: &Config,
+    scene_label: &str,
+    trajectory: &Path,
+    frames: usize,
+    reference: &ReferenceSettings,
+    out: &Path,
+    mut progress: impl FnMut(&str),
+) -> Result<VerifyReport, AppError> {
+    let bad =
+        |p: &Path, e: &dyn std::fmt::Display| AppError::Sweep(format!("{}: {e}", p.display()));
+    std::fs::create_dir_all(out).map_err(|e| bad(out, &e))?;
+    let poses = crate::trajectory::read(trajectory)?;
+    let planner = match config.planner() {
+        Some(p) => p,
+        None => {
+            let model = crate::fidelity::budget::ErrorModel::shipped()
+                .map_err(|e| AppError::Sweep(e.to_string()))?;
+            Planner::new(&config.scene, &config.settings, Budget::default(), model)
+        }
+    };
+    let budget = planner.budget();
+    let n = frames.clamp(1, poses.len().max(1));
+    let rows: Vec<usize> = (0..n)
+        .map(|k| {
+            if n == 1 {
+                0
+            } else {
+                (k * (poses.len() - 1) + (n - 1) / 2) / (n - 1)
+            }
+        })
+        .collect();
+    let intr = &config.scene.camera.intrinsics;
+    let (w, h) = (intr.width_px as usize, intr.height_px as usize);
+    let mut renderer = Renderer::new(config.settings.threads)?;
+    let scene_text = std::fs::read_to_string(scene_label).unwrap_or_else(|_| scene_label.into());
+    let mut checks = Vec::new();
+    let mut rung_times = vec![Vec::new(); LADDER.len()];
+    let mut rung_ok = vec![true; LADDER.len()];
+    for &row in &rows {
+        let pose = poses[row].1;
+        let t0 = Instant::now();
+        let plan = planner.plan(&config.scene, &pose);
+        let frame = renderer.render(&config.scene, &pose, &plan.settings)?;
+        let budget_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let (reference_pl, ref_s, _, ref_p99, _) = super::sweep::cached_reference(
+            &scene_text,
+            &config.scene,
+            &pose,
+            reference,
+            &out.join("references"),
+        )?;
+        let e = frame_error(&frame.pl, &reference_pl, w, h);
+        let (tails, all) = meets(&e, &budget);
+        let (mut ms_s, mut ok_s) = (Vec::new(), Vec::new());
+        for (k, &ppp) in LADDER.iter().enumerate() {
+            let s = Planner::rung(&config.settings, ppp);
+            let t0 = Instant::now();
+            let f = renderer.render(&config.scene, &pose, &s)?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let (t, _) = meets(&frame_error(&f.pl, &reference_pl, w, h), &budget);
+            rung_times[k].push(ms);
+            rung_ok[k] &= t;
+            ms_s.push(format!("{ms:.1}"));
+            ok_s.push(if t { "1" } else { "0" });
+        }
+        let c = FrameCheck {
+            row,
+            frame_id: pose.frame_id,
+            range_m: pose.camera_position_m.length(),
+            phase_deg: plan.features.phase_deg,
+            points_per_pixel: plan.points_per_pixel,
+            self_shadowing: format!("{:?}", plan.self_shadowing),
+            predicted_median: plan.predicted.median,
+            predicted_p99: plan.predicted.p99,
+            predicted_total: plan.predicted.total,
+            median: e.median,
+            p99: e.p99,
+            total: e.total,
+            meets_budget: tails,
+            budget_ms,
+            reference_s: ref_s,
+            reference_est_p99: ref_p99,
+            rung_ms: ms_s.join(" "),
+            rung_meets: ok_s.join(" "),
+        };
+        progress(&format!(
+            "row {row}: {:.0} km, phase {:.1}: ppp {} {:?} in {budget_ms:.1} ms; median {:.2e} p99 {:.2e} total {:.2e} (predicted {:.1e} / {:.1e} / {:.1e}){}; reference {ref_s:.1} s",
+            c.range_m / 1e3,
+            c.phase_deg,
+            c.points_per_pixel,
+            plan.self_shadowing,
+            e.median,
+            e.p99,
+            e.total,
+            c.predicted_median,
+            c.predicted_p99,
+            c.predicted_total,
+            if all {
+                ""
+            } else if tails {
+                " (median over)"
+            } else {
+                " OVER BUDGET"
+            }
+        ));
+        checks.push((c, all));
+    }
+    let csv_path = out.join("frames.csv");
+    let mut wr = csv::Writer::from_path(&csv_path).map_err(|e| bad(&csv_path, &e))?;
+    for (c, _) in &checks {
+        wr.serialize(c).map_err(|e| bad(&csv_path, &e))?;
+    }
+    wr.flush().map_err(|e| bad(&csv_path, &e))?;
+    let nf = checks.len() as f64;
+    let share = |f: &dyn Fn(&(FrameCheck, bool)) -> bool| {
+        checks.iter().filter(|c| f(c)).count() as f64 / nf
+    };
+    let mut times: Vec<f64> = checks.iter().map(|c| c.0.budget_ms).collect();
+    let [b_med, b_max] = crate::stats::quantiles(&mut times, [0.5, 1.0]);
+    let fixed = rung_ok.iter().position(|&ok| ok);
+    let [f_med, f_max] = match fixed {
+        Some(k) => crate::stats::quantiles(&mut rung_times[k], [0.5, 1.0]),
+        None => [f64::NAN; 2],
+    };
+    Ok(VerifyReport {
+        trajectory: trajectory.display().to_string(),
+        scene: scene_label.into(),
+        frames: checks.len(),
+        budget,
+        share_meeting_p99_and_total: share(&|c| c.0.meets_budget),
+        share_meeting_all: share(&|c| c.1),
+        share_predicted_to_meet: share(&|c| {
+            c.0.predicted_median <= budget.median
+                && c.0.predicted_p99 <= budget.p99
+                && c.0.predicted_total <= budget.total
+        }),
+        budget_median_ms: b_med,
+        budget_max_ms: b_max,
+        fixed_rung_points_per_pixel: fixed.map(|k| LADDER[k]),
+        fixed_median_ms: f_med,
+        fixed_max_ms: f_max,
+        speedup_median: f_med / b_med,
+        speedup_slowest: f_max / b_max,
+        csv: csv_path.display().to_string(),
+    })
+}

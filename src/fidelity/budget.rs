@@ -1,0 +1,568 @@
+//! Error-budgeted fidelity (`[render] fidelity = "budget"`): per frame, the cheapest settings
+//! predicted to keep the frame's error (against the converged reference,
+//! [`super::metrics`]) inside a [`Budget`], from what the frame shows ([`Features`]), never
+//! from the scene's name.
+//!
+//! The prediction is an [`ErrorModel`] fitted by the sweep (`optistim sweep ... --fit`): for
+//! each figure (median and 99th percentile per lit pixel, total),
+//!
+//! ```text
+//! ln e(p) = ln margin + k0 + k1 ln p + k2 ln(T + 1e-4) + k3 ln(E + 1e-3)
+//! ```
+//!
+//! with `p` the quadrangles per pixel, `T` the texture (the relative change of albedo and of
+//! the DEM's shading between neighbouring pixels), `E` the share of lit pixels on the limb or
+//! the terminator (so `-k1` is the figure's convergence order), fitted by least squares in
+//! logarithms, and `margin` the largest ratio of measured to modelled error over the sweep's
+//! frames, so that the model is an upper bound on every frame it was fitted on.
+//!
+//! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 4 quadrangles per
+//! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
+//! prediction meets the budget. It models no more than the frame needs: shadows are cast
+//! only when the Sun is low enough over enough of the lit surface for the relief to hide it
+//! ([`Planner::shadowing`]), and the albedo map is read at the level of detail each
+//! quadrangle spans ([`crate::render::MapFilter::Area`]).
+
+use crate::raycast::Tracer;
+use crate::render::settings::SelfShadowing;
+use crate::render::{Integration, MapFilter, PointBudget, Settings};
+use crate::scene::{Pose, Scene};
+use serde::{Deserialize, Serialize};
+
+/// The error a frame may have: relative, per lit pixel (median, 99th percentile) and in
+/// total, as [`super::metrics::FrameError`] measures it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Budget {
+    pub median: f64,
+    pub p99: f64,
+    pub total: f64,
+}
+
+impl Default for Budget {
+    /// 1e-3 per pixel at the median (a tenth of a 12-bit camera's DN at mid-scale), 3e-2 at
+    /// the 99th percentile (limb and terminator pixels), 1e-4 of the total light.
+    fn default() -> Self {
+        Budget {
+            median: 1e-3,
+            p99: 3e-2,
+            total: 1e-4,
+        }
+    }
+}
+
+/// What a frame shows, as the error model reads it (from a grid of 64 x 64 probe rays
+/// against the undisplaced shape, and the maps' statistics).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Features {
+    /// The body's bounding sphere's apparent radius [px].
+    pub radius_px: f64,
+    /// Lit, visible pixels in the frame.
+    pub lit_px: f64,
+    /// Pixels along the limb and the terminator within the frame.
+    pub edge_px: f64,
+    pub phase_deg: f64,
+    pub range_m: f64,
+    /// A pixel's footprint at the nearest surface point, in albedo-map texels (0 without).
+    pub footprint_texels: f64,
+    /// The relative change of the surface's brightness between neighbouring pixels due to the
+    /// albedo map and the DEM's slopes (0 on a plain body).
+    pub texture: f64,
+    /// The share of the lit surface in view where the Sun is low enough for the DEM's steep
+    /// slopes (99th percentile) to hide it (0 without a DEM).
+    pub shadow_share: f64,
+}
+
+impl Features {
+    /// The share of lit pixels on the limb or the terminator.
+    pub fn edge_share(&self) -> f64 {
+        if self.lit_px > 0.0 {
+            (self.edge_px / self.lit_px).min(1.0)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// One figure's model: `ln e = ln margin + k . (1, ln p, ln(T + 1e-4), ln(E + 1e-3))`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FigureModel {
+    pub k: [f64; 4],
+    pub margin: f64,
+}
+
+impl FigureModel {
+    pub fn predict(&self, points_per_px: f64, f: &Features) -> f64 {
+        self.margin * dot(&self.k, &regressors(points_per_px, f)).exp()
+    }
+}
+
+fn regressors(points_per_px: f64, f: &Features) -> [f64; 4] {
+    [
+        1.0,
+        points_per_px.ln(),
+        (f.texture + 1e-4).ln(),
+        (f.edge_share() + 1e-3).ln(),
+    ]
+}
+
+/// The three figures' models, fitted by the sweep.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorModel {
+    pub median: FigureModel,
+    pub p99: FigureModel,
+    pub total: FigureModel,
+    /// Frames the fit saw.
+    pub frames: usize,
+}
+
+/// The model fitted on the sweep of `docs/performance.md` (`config/error_model.toml`).
+const DEFAULT_MODEL: &str = include_str!("../../config/error_model.toml");
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("error model {file}: {message}")]
+    Parse { file: String, message: String },
+    #[error("error model fit: {0}")]
+    Fit(String),
+}
+
+/// Predicted errors of a frame at its chosen settings.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Predicted {
+    pub median: f64,
+    pub p99: f64,
+    pub total: f64,
+}
+
+/// What the planner chose for one frame, and why.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Plan {
+    /// Quadrangles per pixel, boundary nodes and shadows of the chosen rung.
+    pub points_per_pixel: f64,
+    pub boundary_nodes: u32,
+    pub self_shadowing: SelfShadowing,
+    pub predicted: Predicted,
+    /// Whether the prediction meets the budget (false: even the top rung is predicted to
+    /// miss it; the frame is rendered at the top rung).
+    pub meets_budget: bool,
+    pub budget: Budget,
+    pub features: Features,
+    #[serde(skip)]
+    pub settings: Settings,
+}
+
+/// A sweep frame for the fit: its features, the rung's points per pixel and its measured
+/// error figures.
+#[derive(Clone, Copy, Debug)]
+pub struct FitRow {
+    pub points_per_px: f64,
+    pub features: Features,
+    pub median: f64,
+    pub p99: f64,
+    pub total: f64,
+}
+
+impl ErrorModel {
+    /// The fitted model shipped with optistim.
+    pub fn shipped() -> Result<ErrorModel, ModelError> {
+        ErrorModel::parse(DEFAULT_MODEL, "config/error_model.toml")
+    }
+
+    pub fn parse(text: &str, file: &str) -> Result<ErrorModel, ModelError> {
+        let m: ErrorModel = toml::from_str(text).map_err(|e| ModelError::Parse {
+            file: file.into(),
+            message: e.to_string(),
+        })?;
+        for (name, f) in [("median", m.median), ("p99", m.p99), ("total", m.total)] {
+            let ok = f.k.iter().all(|x| x.is_finite()) && f.margin >= 1.0 && f.margin.is_finite();
+            if !ok {
+                return Err(ModelError::Parse {
+                    file: file.into(),
+                    message: format!("{name}: finite k and a finite margin >= 1 expected"),
+                });
+            }
+        }
+        Ok(m)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Fits each figure on `rows` (see the module's documentation): least squares of
+    /// `ln e` on the regressors, then the margin that bounds every row.
+    pub fn fit(rows: &[FitRow]) -> Result<ErrorModel, ModelError> {
+        let fig = |get: fn(&FitRow) -> f64, name: &str| -> Result<FigureModel, ModelError> {
+            let pts: Vec<([f64; 4], f64)> = rows
+                .iter()
+                .filter(|r| get(r).is_finite() && get(r) > 0.0 && r.points_per_px > 0.0)
+                .map(|r| (regressors(r.points_per_px, &r.features), get(r).ln()))
+                .collect();
+            if pts.len() < 4 {
+                return Err(ModelError::Fit(format!(
+                    "{name}: {} usable frames, at least 4 needed",
+                    pts.len()
+                )));
+            }
+            let mut ata = [[0.0f64; 4]; 4];
+            let mut atb = [0.0f64; 4];
+            for (x, y) in &pts {
+                for i in 0..4 {
+                    atb[i] += x[i] * y;
+                    for j in 0..4 {
+                        ata[i][j] += x[i] * x[j];
+                    }
+                }
+            }
+            // A regressor constant over the rows (no textured frame, say) is left out.
+            let k = solve(&ata, &atb)
+                .ok_or_else(|| ModelError::Fit(format!("{name}: singular regressors")))?;
+            let worst = pts
+                .iter()
+                .map(|(x, y)| y - dot(&k, x))
+                .fold(0.0f64, f64::max);
+            Ok(FigureModel {
+                k,
+                margin: worst.exp(),
+            })
+        };
+        Ok(ErrorModel {
+            median: fig(|r| r.median, "median")?,
+            p99: fig(|r| r.p99, "p99")?,
+            total: fig(|r| r.total, "total")?,
+            frames: rows.len(),
+        })
+    }
+
+    pub fn predict(&self, points_per_px: f64, f: &Features) -> Predicted {
+        Predicted {
+            median: self.median.predict(points_per_px, f),
+            p99: self.p99.predict(points_per_px, f),
+            total: self.total.predict(points_per_px, f),
+        }
+    }
+}
+
+fn dot(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// The least-squares solution of the normal equations `a x = b` (Gauss-Jordan with partial
+/// pivoting; a pivot below 1e-9 of the largest diagonal drops its regressor: 0).
+fn solve(a: &[[f64; 4]; 4], b: &[f64; 4]) -> Option<[f64; 4]> {
+    let (mut m, mut v) = (*a, *b);
+    let scale = (0..4).map(|i| m[i][i].abs()).fold(0.0f64, f64::max);
+    if !(scale > 0.0) {
+        return None;
+    }
+    let mut dropped = [false; 4];
+    for col in 0..4 {
+        let piv = (col..4).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
+        if m[piv][col].abs() < 1e-9 * scale {
+            dropped[col] = true;
+            continue;
+        }
+        m.swap(col, piv);
+        v.swap(col, piv);
+        for row in 0..4 {
+            if row != col {
+                let f = m[row][col] / m[col][col];
+                for k in 0..4 {
+                    m[row][k] -= f * m[col][k];
+                }
+                v[row] -= f * v[col];
+            }
+        }
+    }
+    let mut x = [0.0; 4];
+    for i in 0..4 {
+        if !dropped[i] {
+            x[i] = v[i] / m[i][i];
+        }
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// The quadrangles per pixel of the ladder's rungs, cheapest first.
+pub const LADDER: [f64; 7] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0];
+
+/// Of the horizon map's shadows, the share that differ from ray marching on the displaced
+/// lunar DEM (`docs/performance.md`: 89 % of the pixels the same).
+const HORIZON_MAP_MISSES: f64 = 0.11;
+
+/// The per-scene state of the planner: the budget, the model and what the scene's maps are
+/// like (read once).
+pub struct Planner {
+    budget: Budget,
+    model: ErrorModel,
+    base: Settings,
+    /// The albedo map's texel [m] and its contrast per level ([`crate::body::AlbedoMap`]).
+    albedo: Option<(f64, Vec<f64>)>,
+    /// The DEM's texel [m], its mean change of slope between neighbours and its steep slope.
+    relief: Option<(f64, f64, f64)>,
+    has_horizon: bool,
+}
+
+impl Planner {
+    /// `base`: the scene's own `[render]` settings, whose other knobs (threads, depth,
+    /// gridding) every plan keeps.
+    pub fn new(scene: &Scene, base: &Settings, budget: Budget, model: ErrorModel) -> Planner {
+        let body = &scene.body;
+        let r = body.shape.bounding_radius_m();
+        let albedo = body
+            .albedo_map
+            .as_ref()
+            .map(|a| (r * a.map.spacing_rad().1, a.contrast_by_level()));
+        let relief = body.relief.as_ref().map(|rel| {
+            let (change, steep) = rel.slope_statistics();
+            (r * rel.heights_m.spacing_rad().1, change, steep)
+        });
+        Planner {
+            budget,
+            model,
+            base: base.clone(),
+            albedo,
+            relief,
+            has_horizon: body.relief.as_ref().is_some_and(|r| r.has_horizon()),
+        }
+    }
+
+    pub fn budget(&self) -> Budget {
+        self.budget
+    }
+
+    /// The settings of the ladder's rung at `points_per_px` over `base`.
+    pub fn rung(base: &Settings, points_per_px: f64) -> Settings {
+        Settings {
+            points: PointBudget::PerPixel(points_per_px),
+            integration: Integration::Midpoint {
+                points_per_deg: 5.0,
+            },
+            boundary_nodes: if points_per_px >= 4.0 {
+                8
+            } else if points_per_px >= 2.0 {
+                6
+            } else {
+                4
+            },
+            map_filter: MapFilter::Area,
+            ..base.clone()
+        }
+    }
+
+    /// What the frame of `scene` seen from `pose` shows.
+    pub fn features(&self, scene: &Scene, pose: &Pose) -> Features {
+        const G: usize = 64;
+        let intr = &scene.camera.intrinsics;
+        let (w, h) = (intr.width_px as f64, intr.height_px as f64);
+        let (fu, fv) = intr.focal_px();
+        let f_px = fu.max(fv);
+        let radius_m = scene.body.shape.bounding_radius_m();
+        let range_m = pose.camera_position_m.length();
+        let tracer = Tracer::new(scene, pose);
+        let steep = self.relief.map_or(0.0, |r| r.2);
+        // Corner classes: 0 misses, 1 dark, 2 lit (and the Sun's tan of elevation there).
+        let (du, dv) = (w / G as f64, h / G as f64);
+        let mut class = vec![0u8; (G + 1) * (G + 1)];
+        let (mut lit, mut low) = (0usize, 0usize);
+        for j in 0..=G {
+            for i in 0..=G {
+                let c = match tracer.shape_at(i as f64 * du, j as f64 * dv) {
+                    None => 0,
+                    Some((p, n)) => {
+                        let s = (pose.sun_position_m - p).normalize();
+                        let mu0 = n.dot(s);
+                        if mu0 > 0.0 {
+                            let tan_e = mu0 / (1.0 - mu0 * mu0).max(1e-30).sqrt();
+                            if i < G && j < G {
+                                lit += 1;
+                                low += usize::from(tan_e < steep);
+                            }
+                            2
+                        } else {
+                            1
+                        }
+                    }
+                };
+                class[j * (G + 1) + i] = c;
+            }
+        }
+        let mut edges = 0usize;
+        for j in 0..G {
+            for i in 0..G {
+                let k = j * (G + 1) + i;
+                let c = [class[k], class[k + 1], class[k + G + 1], class[k + G + 2]];
+                if c.contains(&2) && c.iter().any(|&x| x != 2) {
+                    edges += 1;
+                }
+            }
+        }
+        let cell_px = (du * dv).sqrt();
+        let s = pose.sun_position_m.normalize();
+        let c = pose.camera_position_m.normalize();
+        let phase_deg = s.dot(c).clamp(-1.0, 1.0).acos().to_degrees();
+        // A pixel's footprint at the nearest surface point [m].
+        let footprint_m = (range_m - radius_m).max(0.0) / f_px;
+        let mut texture = 0.0;
+        let mut footprint_texels = 0.0;
+        if let Some((texel_m, contrast)) = &self.albedo {
+            footprint_texels = footprint_m / texel_m;
+            texture += level_contrast(contrast, footprint_texels);
+        }
+        if let Some((texel_m, change, _)) = self.relief {
+            let fp = footprint_m / texel_m;
+            // A slope's change moves the shading by about tan(incidence) times as much; a
+            // pixel over several texels sees their changes average down as 1/sqrt.
+            let per_px = if fp <= 1.0 {
+                change * fp
+            } else {
+                change / fp.sqrt()
+            };
+            let incidence = (0.5 * phase_deg).min(80.0).to_radians();
+            texture += per_px * (1.0 + incidence.tan());
+        }
+        Features {
+            radius_px: (radius_m / range_m).min(1.0).asin() * f_px,
+            lit_px: lit as f64 * du * dv,
+            edge_px: edges as f64 * cell_px,
+            phase_deg,
+            range_m,
+            footprint_texels,
+            texture,
+            shadow_share: if lit > 0 {
+                low as f64 / lit as f64
+            } else {
+                0.0
+            },
+        }
+    }
+
+    /// How the frame's shadows are cast: none when the Sun is above the DEM's steep slopes
+    /// everywhere in view; the horizon map (one lookup a point) when the pixels it gets wrong
+    /// stay a tenth of the 1 % the 99th percentile allows; else ray marching (exact to the
+    /// DEM).
+    pub fn shadowing(&self, f: &Features) -> SelfShadowing {
+        if self.relief.is_none() || f.shadow_share < 1e-3 {
+            SelfShadowing::Off
+        } else if self.has_horizon && f.shadow_share * HORIZON_MAP_MISSES < 1e-3 {
+            SelfShadowing::HorizonMap
+        } else {
+            SelfShadowing::RayMarching
+        }
+    }
+
+    /// The cheapest rung predicted to meet the budget for the frame of `scene` from `pose`.
+    pub fn plan(&self, scene: &Scene, pose: &Pose) -> Plan {
+        let features = self.features(scene, pose);
+        let shadows = self.shadowing(&features);
+        let b = self.budget;
+        let fits = |p: &Predicted| p.median <= b.median && p.p99 <= b.p99 && p.total <= b.total;
+        let mut chosen = None;
+        for &ppp in &LADDER {
+            let predicted = self.model.predict(ppp, &features);
+            // A frame with nothing lit has no error to budget: the cheapest rung.
+            if features.lit_px == 0.0 || fits(&predicted) {
+                chosen = Some((ppp, predicted, true));
+                break;
+            }
+        }
+        let top = LADDER[LADDER.len() - 1];
+        let (ppp, predicted, meets) =
+            chosen.unwrap_or((top, self.model.predict(top, &features), false));
+        let settings = Settings {
+            self_shadowing: shadows,
+            ..Planner::rung(&self.base, ppp)
+        };
+        Plan {
+            points_per_pixel: ppp,
+            boundary_nodes: settings.boundary_nodes,
+            self_shadowing: shadows,
+            predicted,
+            meets_budget: meets,
+            budget: b,
+            features,
+            settings,
+        }
+    }
+}
+
+/// A map's relative change between neighbouring pixels whose footprint spans `fp` texels:
+/// a fraction of a texel's change while texels are larger than pixels, else the contrast of
+/// the level whose texels match the footprint (interpolated in `log2 fp`).
+fn level_contrast(contrast: &[f64], fp: f64) -> f64 {
+    if contrast.is_empty() {
+        return 0.0;
+    }
+    if fp <= 1.0 {
+        return contrast[0] * fp;
+    }
+    let lod = fp.log2();
+    let k = (lod.floor() as usize).min(contrast.len() - 1);
+    let t = lod - k as f64;
+    let next = contrast[(k + 1).min(contrast.len() - 1)];
+    (1.0 - t) * contrast[k] + t * next
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(ppp: f64, texture: f64, median: f64) -> FitRow {
+        FitRow {
+            points_per_px: ppp,
+            features: Features {
+                texture,
+                lit_px: 1000.0,
+                edge_px: 10.0,
+                ..Default::default()
+            },
+            median,
+            p99: 10.0 * median,
+            total: 0.1 * median,
+        }
+    }
+
+    /// Frames made by `e = 0.05 p^-1 T^0.9 E^0.2` (with the regressors' offsets) are fitted
+    /// back to that law with a margin of 1; a noisy row raises the margin so that the
+    /// prediction still bounds every row.
+    #[test]
+    fn the_fit_recovers_the_law_that_made_the_frames() {
+        let law = [0.05f64.ln(), -1.0, 0.9, 0.2];
+        let mut rows = Vec::new();
+        for &t in &[0.0, 0.01, 0.1] {
+            for &edge in &[5.0, 50.0, 200.0] {
+                for &p in &LADDER {
+                    let mut r = row(p, t, 0.0);
+                    r.features.edge_px = edge;
+                    let e = dot(&law, &regressors(p, &r.features)).exp();
+                    (r.median, r.p99, r.total) = (e, 10.0 * e, 0.1 * e);
+                    rows.push(r);
+                }
+            }
+        }
+        let m = ErrorModel::fit(&rows).unwrap();
+        for (a, b) in m.median.k.iter().zip(&law) {
+            assert!((a - b).abs() < 1e-9, "{:?}", m.median);
+        }
+        assert!(m.median.margin < 1.0 + 1e-9);
+        let mut noisy = rows[5];
+        noisy.median *= 3.0;
+        rows.push(noisy);
+        let m = ErrorModel::fit(&rows).unwrap();
+        for r in &rows {
+            assert!(m.median.predict(r.points_per_px, &r.features) >= r.median * (1.0 - 1e-9));
+        }
+        // The shipped model parses and round-trips.
+        let shipped = ErrorModel::shipped().unwrap();
+        assert_eq!(ErrorModel::parse(&shipped.to_toml(), "x").unwrap(), shipped);
+    }
+
+    #[test]
+    fn contrast_follows_the_footprint() {
+        let c = [0.2, 0.1, 0.05];
+        assert_eq!(level_contrast(&c, 0.5), 0.1);
+        assert_eq!(level_contrast(&c, 2.0), 0.1);
+        assert!((level_contrast(&c, 2f64.sqrt() * 2.0) - 0.075).abs() < 1e-12);
+        assert_eq!(level_contrast(&c, 100.0), 0.05);
+    }
+}

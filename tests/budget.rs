@@ -1,0 +1,127 @@
+//! Error-budgeted fidelity (`[render] fidelity = "budget"`): the keys parse and refuse what
+//! they must, the planner's choice is reported with the frame, and a planned frame meets its
+//! budget against the converged reference.
+
+mod common;
+use common::*;
+use optistim::fidelity::budget::LADDER;
+use optistim::fidelity::metrics::frame_error;
+use optistim::raycast::reference::{self, ReferenceSettings};
+use optistim::render::Renderer;
+
+fn spec(render: &'static str) -> SceneSpec<'static> {
+    SceneSpec {
+        resolution: [256, 256],
+        pixel_m: 5.5e-6 * 8.0,
+        focal_m: 0.03,
+        camera_m: [8.0 * R_MOON, 0.0, 0.0],
+        sun_m: [AU * 0.5, AU * 0.866, 0.0],
+        render,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn the_budget_keys_parse_and_refuse_what_they_must() {
+    let ok = spec("fidelity = \"budget\"\n[render.budget]\nmedian = 5e-4\np99 = 1e-2\n");
+    let cfg = optistim::config::parse(&ok.toml(), "t").unwrap();
+    let f = cfg.fidelity.as_ref().expect("budget mode");
+    assert_eq!(
+        (f.budget.median, f.budget.p99, f.budget.total),
+        (5e-4, 1e-2, 1e-4)
+    );
+    let fixed = optistim::config::parse(&spec("").toml(), "t").unwrap();
+    assert!(fixed.fidelity.is_none());
+    for (render, key) in [
+        ("fidelity = \"cheap\"", "render.fidelity"),
+        ("[render.budget]\nmedian = 1e-3", "render.budget"),
+        (
+            "fidelity = \"budget\"\n[render.budget]\nmedian = -1.0",
+            "render.budget.median",
+        ),
+        (
+            "fidelity = \"budget\"\n[render.budget]\nmodel = \"nowhere.toml\"",
+            "render.budget.model",
+        ),
+        (
+            "fidelity = \"budget\"\n[render.budget]\nmedain = 1e-3",
+            "medain",
+        ),
+    ] {
+        let e = optistim::config::parse(&spec(render).toml(), "t")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(key), "{render}: {e}");
+    }
+}
+
+/// A Lambert sphere at 60 deg of phase, 256 x 256 (a disk 230 px across): the planner picks a rung of its ladder,
+/// predicts an error within the budget, and the frame rendered with its settings measures
+/// within the budget against the reference. A tighter budget climbs the ladder.
+#[test]
+fn a_planned_frame_meets_its_budget_against_the_reference() {
+    let cfg = optistim::config::parse(&spec("fidelity = \"budget\"").toml(), "t").unwrap();
+    let planner = cfg.planner().unwrap();
+    let plan = planner.plan(&cfg.scene, &cfg.pose);
+    assert!(LADDER.contains(&plan.points_per_pixel), "{plan:?}");
+    assert!(plan.meets_budget, "{plan:?}");
+    assert!(
+        plan.features.lit_px > 1000.0 && plan.features.edge_px > 50.0,
+        "{plan:?}"
+    );
+    assert!((plan.features.phase_deg - 60.0).abs() < 1e-2);
+    let frame = Renderer::new(0)
+        .unwrap()
+        .render(&cfg.scene, &cfg.pose, &plan.settings)
+        .unwrap();
+    let r = reference::render(&cfg.scene, &cfg.pose, &ReferenceSettings::default()).unwrap();
+    let e = frame_error(&frame.pl, &r.frame.pl, 256, 256);
+    let b = plan.budget;
+    assert!(
+        e.median <= b.median && e.p99 <= b.p99 && e.total <= b.total,
+        "{e:?} against {b:?} (predicted {:?})",
+        plan.predicted
+    );
+    // The same frame, planned again, gets the same settings (no state between frames).
+    assert_eq!(planner.plan(&cfg.scene, &cfg.pose), plan);
+    let tight = spec("fidelity = \"budget\"\n[render.budget]\nmedian = 1e-6\np99 = 1e-5\n");
+    let cfg = optistim::config::parse(&tight.toml(), "t").unwrap();
+    let tight_plan = cfg.planner().unwrap().plan(&cfg.scene, &cfg.pose);
+    assert!(
+        tight_plan.points_per_pixel > plan.points_per_pixel,
+        "{tight_plan:?}"
+    );
+}
+
+/// `optistim render` of a budgeted scene reports the plan in its JSON line and in the FITS
+/// headers.
+#[test]
+fn a_budgeted_render_reports_its_choice_and_prediction() {
+    let dir = TempDir::new("budget-render");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, spec("fidelity = \"budget\"").toml()).unwrap();
+    let out = dir.join("out");
+    let cfg = optistim::config::load(&scene).unwrap();
+    let summary = optistim::app::render::run(
+        &cfg,
+        "scene",
+        &out,
+        optistim::app::render::Method::Quadrangle,
+    )
+    .unwrap();
+    let json = serde_json::to_value(&summary).unwrap();
+    let f = &json["fidelity"];
+    assert!(f["points_per_pixel"].as_f64().unwrap() > 0.0, "{json}");
+    assert!(f["predicted"]["median"].as_f64().is_some(), "{json}");
+    let fits = std::fs::read(out.join("power.fits")).unwrap();
+    let header = String::from_utf8_lossy(&fits[..2880 * 2]);
+    for key in [
+        "FIDELITY= 'budget",
+        "PPP     =",
+        "PREDMED =",
+        "BUDP99  =",
+        "BUDMET  =",
+    ] {
+        assert!(header.contains(key), "{key} missing");
+    }
+}

@@ -498,7 +498,7 @@ fn level_contrast(contrast: &[f64], fp: f64) -> f64 {
     }
     let lod = fp.log2();
     let k = (lod.floor() as usize).min(contrast.len() - 1);
-    let t = lod - k as f64;
+    let t = (lod - k as f64).min(1.0);
     let next = contrast[(k + 1).min(contrast.len() - 1)];
     (1.0 - t) * contrast[k] + t * next
 }

@@ -631,7 +631,8 @@ impl AlbedoMap {
     #[inline]
     pub fn scale_over(&self, n_body: DVec3, footprint_rad: f64, fallback: f64) -> f64 {
         let ratio = footprint_rad / self.map.spacing_rad().1;
-        if !(ratio > 1.0) || self.levels.is_empty() {
+        // (NaN reads the map itself too.)
+        if ratio.is_nan() || ratio <= 1.0 || self.levels.is_empty() {
             return self.scale_at(n_body, fallback);
         }
         let (lon, lat) = crate::geometry::lon_lat(n_body);

@@ -252,7 +252,7 @@ fn dot(a: &[f64; 4], b: &[f64; 4]) -> f64 {
 fn solve(a: &[[f64; 4]; 4], b: &[f64; 4]) -> Option<[f64; 4]> {
     let (mut m, mut v) = (*a, *b);
     let scale = (0..4).map(|i| m[i][i].abs()).fold(0.0f64, f64::max);
-    if !(scale > 0.0) {
+    if scale.is_nan() || scale <= 0.0 {
         return None;
     }
     let mut dropped = [false; 4];
@@ -267,8 +267,9 @@ fn solve(a: &[[f64; 4]; 4], b: &[f64; 4]) -> Option<[f64; 4]> {
         for row in 0..4 {
             if row != col {
                 let f = m[row][col] / m[col][col];
-                for k in 0..4 {
-                    m[row][k] -= f * m[col][k];
+                let pivot_row = m[col];
+                for (x, p) in m[row].iter_mut().zip(pivot_row) {
+                    *x -= f * p;
                 }
                 v[row] -= f * v[col];
             }

@@ -32,6 +32,8 @@ pub enum AppError {
     Stability(String),
     #[error("sweep: {0}")]
     Sweep(String),
+    #[error("verify-budget: {0}")]
+    VerifyBudget(String),
     #[error("replay: {0}")]
     Replay(String),
     #[error(transparent)]

@@ -81,15 +81,16 @@ pub fn run(
     out: &Path,
     mut progress: impl FnMut(&str),
 ) -> Result<VerifyReport, AppError> {
-    let bad =
-        |p: &Path, e: &dyn std::fmt::Display| AppError::Sweep(format!("{}: {e}", p.display()));
+    let bad = |p: &Path, e: &dyn std::fmt::Display| {
+        AppError::VerifyBudget(format!("{}: {e}", p.display()))
+    };
     std::fs::create_dir_all(out).map_err(|e| bad(out, &e))?;
     let poses = crate::trajectory::read(trajectory)?;
     let planner = match config.planner() {
         Some(p) => p,
         None => {
             let model = crate::fidelity::budget::ErrorModel::shipped()
-                .map_err(|e| AppError::Sweep(e.to_string()))?;
+                .map_err(|e| AppError::VerifyBudget(e.to_string()))?;
             Planner::new(&config.scene, &config.settings, Budget::default(), model)
         }
     };

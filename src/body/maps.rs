@@ -243,15 +243,18 @@ impl Map {
 
     /// Another map on the same grid, with these values (no encoding applied).
     pub fn with_values(&self, values: Vec<f64>) -> Result<Map, MapError> {
-        let d = Encoding::default();
+        Map::from_values(&self.file, self.width, self.height, values, &self.extent())
+    }
+
+    /// The encoding that only places a grid, of any size, on this map's extent.
+    fn extent(&self) -> Encoding {
         let west = self.lon0.to_degrees();
         let north = self.lat_top.to_degrees();
-        let enc = Encoding {
+        Encoding {
             lon_limits_deg: [west, west + (self.dlon * self.width as f64).to_degrees()],
             lat_limits_deg: [north - (self.dlat * self.height as f64).to_degrees(), north],
-            ..d
-        };
-        Map::from_values(&self.file, self.width, self.height, values, &enc)
+            ..Encoding::default()
+        }
     }
 
     /// Longitude and latitude [rad] of the centre of texel `(col, row)` (row 0 at the north
@@ -385,7 +388,8 @@ impl Map {
     }
 
     /// The next coarser level of an area-averaged pyramid: each texel the mean of a 2 x 2
-    /// block, its rows weighted by their area (`cos` of their latitude), on the same extent.
+    /// block, its rows weighted by their area (`cos` of their latitude), on the same extent
+    /// (with its own pole values: the means of its first and last rows).
     /// `None` when a side is odd or below 4 texels (the pyramid stops there).
     pub fn halved(&self) -> Option<Map> {
         let (w, h) = (self.width, self.height);
@@ -409,13 +413,7 @@ impl Map {
                 };
             }
         }
-        let mut m = self.clone();
-        m.width = w2;
-        m.height = h2;
-        m.dlon *= 2.0;
-        m.dlat *= 2.0;
-        m.values = v.iter().map(|&x| x as f32).collect();
-        Some(m)
+        Map::from_values(&self.file, w2, h2, v, &self.extent()).ok()
     }
 
     /// Whether `other` lies on this map's grid (its [`Map::taps`] serve both).

@@ -291,23 +291,17 @@ pub const LADDER: [f64; 7] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0];
 /// lunar DEM (`docs/performance.md`: 89 % of the pixels the same).
 const HORIZON_MAP_MISSES: f64 = 0.11;
 
-/// The per-scene state of the planner: the budget, the model and what the scene's maps are
-/// like (read once).
-pub struct Planner {
-    budget: Budget,
-    model: ErrorModel,
-    base: Settings,
+/// What a scene's maps are like (read once), to tell what each of its frames shows
+/// ([`FrameProbe::features`]): the planner's eyes, and the sweep's, which needs no model.
+pub struct FrameProbe {
     /// The albedo map's texel [m] and its contrast per level ([`crate::body::AlbedoMap`]).
     albedo: Option<(f64, Vec<f64>)>,
     /// The DEM's texel [m], its mean change of slope between neighbours and its steep slope.
     relief: Option<(f64, f64, f64)>,
-    has_horizon: bool,
 }
 
-impl Planner {
-    /// `base`: the scene's own `[render]` settings, whose other knobs (threads, depth,
-    /// gridding) every plan keeps.
-    pub fn new(scene: &Scene, base: &Settings, budget: Budget, model: ErrorModel) -> Planner {
+impl FrameProbe {
+    pub fn new(scene: &Scene) -> FrameProbe {
         let body = &scene.body;
         let r = body.shape.bounding_radius_m();
         let albedo = body
@@ -318,37 +312,7 @@ impl Planner {
             let (change, steep) = rel.slope_statistics();
             (r * rel.heights_m.spacing_rad().1, change, steep)
         });
-        Planner {
-            budget,
-            model,
-            base: base.clone(),
-            albedo,
-            relief,
-            has_horizon: body.relief.as_ref().is_some_and(|r| r.has_horizon()),
-        }
-    }
-
-    pub fn budget(&self) -> Budget {
-        self.budget
-    }
-
-    /// The settings of the ladder's rung at `points_per_px` over `base`.
-    pub fn rung(base: &Settings, points_per_px: f64) -> Settings {
-        Settings {
-            points: PointBudget::PerPixel(points_per_px),
-            integration: Integration::Midpoint {
-                points_per_deg: 5.0,
-            },
-            boundary_nodes: if points_per_px >= 4.0 {
-                8
-            } else if points_per_px >= 2.0 {
-                6
-            } else {
-                4
-            },
-            map_filter: MapFilter::Area,
-            ..base.clone()
-        }
+        FrameProbe { albedo, relief }
     }
 
     /// What the frame of `scene` seen from `pose` shows.
@@ -399,9 +363,10 @@ impl Planner {
             }
         }
         let cell_px = (du * dv).sqrt();
-        let s = pose.sun_position_m.normalize();
-        let c = pose.camera_position_m.normalize();
-        let phase_deg = s.dot(c).clamp(-1.0, 1.0).acos().to_degrees();
+        let phase_deg = pose
+            .sun_position_m
+            .angle_between(pose.camera_position_m)
+            .to_degrees();
         // A pixel's footprint at the nearest surface point [m].
         let footprint_m = (range_m - radius_m).max(0.0) / f_px;
         let mut texture = 0.0;
@@ -437,13 +402,59 @@ impl Planner {
             },
         }
     }
+}
+
+/// The per-scene state of the planner: the budget, the model and the scene's probe.
+pub struct Planner {
+    budget: Budget,
+    model: ErrorModel,
+    base: Settings,
+    probe: FrameProbe,
+    has_horizon: bool,
+}
+
+impl Planner {
+    /// `base`: the scene's own `[render]` settings, whose other knobs (threads, depth,
+    /// gridding) every plan keeps.
+    pub fn new(scene: &Scene, base: &Settings, budget: Budget, model: ErrorModel) -> Planner {
+        Planner {
+            budget,
+            model,
+            base: base.clone(),
+            probe: FrameProbe::new(scene),
+            has_horizon: scene.body.relief.as_ref().is_some_and(|r| r.has_horizon()),
+        }
+    }
+
+    pub fn budget(&self) -> Budget {
+        self.budget
+    }
+
+    /// The settings of the ladder's rung at `points_per_px` over `base`.
+    pub fn rung(base: &Settings, points_per_px: f64) -> Settings {
+        Settings {
+            points: PointBudget::PerPixel(points_per_px),
+            integration: Integration::Midpoint {
+                points_per_deg: 5.0,
+            },
+            boundary_nodes: if points_per_px >= 4.0 {
+                8
+            } else if points_per_px >= 2.0 {
+                6
+            } else {
+                4
+            },
+            map_filter: MapFilter::Area,
+            ..base.clone()
+        }
+    }
 
     /// How the frame's shadows are cast: none when the Sun is above the DEM's steep slopes
     /// everywhere in view; the horizon map (one lookup a point) when the pixels it gets wrong
     /// stay a tenth of the 1 % the 99th percentile allows; else ray marching (exact to the
     /// DEM).
     pub fn shadowing(&self, f: &Features) -> SelfShadowing {
-        if self.relief.is_none() || f.shadow_share < 1e-3 {
+        if self.probe.relief.is_none() || f.shadow_share < 1e-3 {
             SelfShadowing::Off
         } else if self.has_horizon && f.shadow_share * HORIZON_MAP_MISSES < 1e-3 {
             SelfShadowing::HorizonMap
@@ -454,7 +465,7 @@ impl Planner {
 
     /// The cheapest rung predicted to meet the budget for the frame of `scene` from `pose`.
     pub fn plan(&self, scene: &Scene, pose: &Pose) -> Plan {
-        let features = self.features(scene, pose);
+        let features = self.probe.features(scene, pose);
         let shadows = self.shadowing(&features);
         let b = self.budget;
         let fits = |p: &Predicted| p.median <= b.median && p.p99 <= b.p99 && p.total <= b.total;

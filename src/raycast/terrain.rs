@@ -125,6 +125,15 @@ impl MaxPyramid {
     }
 }
 
+/// A point of a ray: its gap above the ground [m], its direction from the centre (unit) and
+/// that direction's longitude and latitude [rad].
+struct Probe {
+    gap: f64,
+    up: DVec3,
+    lon: f64,
+    lat: f64,
+}
+
 impl Terrain {
     pub(super) fn new(relief: &Relief) -> Terrain {
         let map = relief.heights_m.clone();
@@ -169,12 +178,12 @@ impl Terrain {
     /// How far along the ray `origin + t dir` from `t` it may leap without meeting the
     /// ground, from the pyramid (0 when no level allows a leap): the longest step at which
     /// the ray's lowest radius over the step clears the highest ground within reach.
-    fn leap(&self, origin: DVec3, dir: DVec3, t: f64, q: DVec3, lon: f64, lat: f64) -> f64 {
+    fn leap(&self, origin: DVec3, dir: DVec3, t: f64, at: &Probe) -> f64 {
         let Some(pyr) = &self.pyramid else {
             return 0.0;
         };
         let map = &self.heights;
-        let (x, y) = map.texel_coords(lon, lat);
+        let (x, y) = map.texel_coords(at.lon, at.lat);
         let x = x.rem_euclid(map.width as f64);
         // The ray's lowest radius over [t, t + dt]: |origin + s dir|^2 is convex in s.
         let b = origin.dot(dir);
@@ -184,8 +193,7 @@ impl Terrain {
             (c + 2.0 * s * b + s * s).max(0.0).sqrt()
         };
         // |sin| and cos of the point's latitude.
-        let r = q.length();
-        let (sin_lat, cos_lat) = ((q.z / r).abs(), q.truncate().length() / r);
+        let (sin_lat, cos_lat) = (at.up.z.abs(), at.up.truncate().length());
         // Levels from the finest: a level that fails fails all coarser ones (their reach and
         // their step are larger), so the first failure ends the search.
         let mut best = 0.0;
@@ -238,34 +246,38 @@ impl Terrain {
         }
         let hit_within = 1e-9 * self.radius_m;
         let rate = 1.0 + self.max_slope;
-        // The gap above the ground at `t`, and the point's longitude and latitude.
         let probe = |t: f64| {
             let q = origin + dir * t;
             let r = q.length();
-            let (lon, lat) = crate::geometry::lon_lat_unit(q / r);
+            let up = q / r;
+            let (lon, lat) = crate::geometry::lon_lat_unit(up);
             let h = self.heights.sample(lon, lat).unwrap_or(0.0);
-            (r - self.radius_m - h, lon, lat)
+            Probe {
+                gap: r - self.radius_m - h,
+                up,
+                lon,
+                lat,
+            }
         };
-        let at = |t: f64| origin + dir * t;
-        let gap = |t: f64| probe(t).0;
+        let gap = |t: f64| probe(t).gap;
         let mut t = t_in.max(t0);
-        let (mut g, mut lon, mut lat) = probe(t);
+        let mut at = probe(t);
         for _ in 0..MAX_STEPS {
-            if g <= hit_within {
+            if at.gap <= hit_within {
                 return Some(t);
             }
-            let leap = self.leap(origin, dir, t, at(t), lon, lat);
+            let leap = self.leap(origin, dir, t, &at);
             if leap > 0.0 {
                 t += leap;
                 if t > t_out {
                     return None;
                 }
-                (g, lon, lat) = probe(t);
+                at = probe(t);
                 continue;
             }
-            let next = t + (g / rate).max(self.min_step_m);
-            let (g_next, lon_n, lat_n) = probe(next);
-            if g_next < 0.0 {
+            let next = t + (at.gap / rate).max(self.min_step_m);
+            let ahead = probe(next);
+            if ahead.gap < 0.0 {
                 // Overshot (a minimal step): the crossing lies between.
                 let (mut lo, mut hi) = (t, next);
                 for _ in 0..60 {
@@ -284,7 +296,7 @@ impl Terrain {
             if next > t_out {
                 return None;
             }
-            (t, g, lon, lat) = (next, g_next, lon_n, lat_n);
+            (t, at) = (next, ahead);
         }
         Some(t)
     }

@@ -40,7 +40,7 @@ pub mod chart;
 
 use super::AppError;
 use crate::config::Config;
-use crate::fidelity::budget::{Budget, ErrorModel, Features, FitRow, Planner};
+use crate::fidelity::budget::{ErrorModel, Features, FitRow, FrameProbe, Planner};
 use crate::fidelity::metrics::{FrameError, frame_error};
 use crate::raycast::reference::{self, ReferenceSettings};
 use crate::render::Renderer;
@@ -428,12 +428,8 @@ pub fn run(
             .iter()
             .map(|s| with_setting(&scene, &s.render).map_err(|e| e.to_string()))
             .collect();
-        let features = {
-            let model = ErrorModel::shipped().map_err(|e| AppError::Sweep(e.to_string()))?;
-            let c = &scene.config;
-            Planner::new(&c.scene, &c.settings, Budget::default(), model)
-                .features(&c.scene, &c.pose)
-        };
+        let c = &scene.config;
+        let features = FrameProbe::new(&c.scene).features(&c.scene, &c.pose);
         let mut renderer = Renderer::new(scene.config.settings.threads)?;
         let mut times = vec![Vec::new(); configs.len()];
         let mut frames: Vec<Option<Result<crate::render::Frame, String>>> =

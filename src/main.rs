@@ -125,37 +125,7 @@ enum Command {
     /// The daemon: poses over TCP (binary frames or JSON lines) and serial in, calibrated
     /// frames out on the stimulator's screen (fullscreen when a display exists, off-screen
     /// otherwise), HTTP control and monitoring. Stops cleanly on SIGINT/SIGTERM.
-    Serve {
-        /// Scene TOML with a [stimulator] section (default: the embedded config/daemon.toml).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Pose listener (port 0 picks a free port; the chosen one is printed).
-        #[arg(long, default_value = optistim::server::DEFAULT_LISTEN)]
-        listen: std::net::SocketAddr,
-        /// HTTP listener.
-        #[arg(long, default_value = optistim::server::DEFAULT_HTTP)]
-        http: std::net::SocketAddr,
-        /// Serial line with the binary protocol (e.g. /dev/ttyUSB0).
-        #[arg(long)]
-        serial: Option<String>,
-        #[arg(long, default_value_t = 115_200)]
-        baud: u32,
-        /// auto (fullscreen window when a display exists) | offscreen | window | cpu.
-        #[arg(long, default_value = "auto")]
-        present: String,
-        /// The stimulator's monitor for the window, by index or name.
-        #[arg(long, default_value = "0")]
-        monitor: String,
-        /// Also open the operator's preview window (with --present window).
-        #[arg(long)]
-        preview: bool,
-        /// free (latest pose wins) | lockstep (every pose, in order).
-        #[arg(long, default_value = "free")]
-        mode: String,
-        /// Record every received message (JSON lines) to this file.
-        #[arg(long)]
-        record: Option<PathBuf>,
-    },
+    Serve(ServeArgs),
     /// Stream a pose file (trajectory CSV/JSONL or a recording) to a daemon and report the acks.
     Replay {
         file: PathBuf,
@@ -173,6 +143,9 @@ enum Command {
         /// Write the report (JSON) here as well as to stdout.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// The daemon's access token (serve --token-file), sent in the hello.
+        #[arg(long)]
+        token_file: Option<PathBuf>,
     },
     /// Time the stimulator's per-frame path on the GPU: F_eff -> screen region -> LUT pass ->
     /// presented off-screen and read back; per stage, with the CPU reference's agreement.
@@ -354,20 +327,7 @@ fn run() -> anyhow::Result<()> {
             })?;
             println!("{}", serde_json::to_string(&report)?);
         }
-        Command::Serve {
-            config: path,
-            listen,
-            http,
-            serial,
-            baud,
-            present,
-            monitor,
-            preview,
-            mode,
-            record,
-        } => serve(
-            path, listen, http, serial, baud, &present, monitor, preview, &mode, record,
-        )?,
+        Command::Serve(args) => serve(args)?,
         Command::Replay {
             file,
             rate,
@@ -375,9 +335,13 @@ fn run() -> anyhow::Result<()> {
             frames,
             mode,
             report,
+            token_file,
         } => {
             let mode = parse_mode(&mode)?;
-            let r = app::replay::run(&file, &to, rate, frames, mode)?;
+            let token = token_file
+                .map(|f| optistim::server::access::Access::read_token_file(&f))
+                .transpose()?;
+            let r = app::replay::run(&file, &to, rate, frames, mode, token.as_deref())?;
             let text = serde_json::to_string_pretty(&r)?;
             if let Some(p) = report {
                 std::fs::write(&p, &text).with_context(|| format!("{}", p.display()))?;
@@ -428,25 +392,88 @@ fn run() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `optistim serve`'s arguments.
+#[derive(clap::Args)]
+struct ServeArgs {
+    /// Scene TOML with a [stimulator] section (default: the embedded config/daemon.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Pose listener (port 0 picks a free port; the chosen one is printed).
+    #[arg(long, default_value = optistim::server::DEFAULT_LISTEN)]
+    listen: std::net::SocketAddr,
+    /// HTTP listener.
+    #[arg(long, default_value = optistim::server::DEFAULT_HTTP)]
+    http: std::net::SocketAddr,
+    /// Serial line with the binary protocol (e.g. /dev/ttyUSB0).
+    #[arg(long)]
+    serial: Option<String>,
+    #[arg(long, default_value_t = 115_200)]
+    baud: u32,
+    /// auto (fullscreen window when a display exists) | offscreen | window | cpu.
+    #[arg(long, default_value = "auto")]
+    present: String,
+    /// The stimulator's monitor for the window, by index or name.
+    #[arg(long, default_value = "0")]
+    monitor: String,
+    /// Also open the operator's preview window (with --present window).
+    #[arg(long)]
+    preview: bool,
+    /// free (latest pose wins) | lockstep (every pose, in order).
+    #[arg(long, default_value = "free")]
+    mode: String,
+    /// Record every received message (JSON lines) to this file.
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// The access token (first line; the file mode 600): required on mutating HTTP calls
+    /// and in a TCP client's hello. Needed to listen on anything but loopback.
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Listen on non-loopback addresses without a token (anyone who reaches the ports
+    /// steers the bench).
+    #[arg(long)]
+    insecure: bool,
+    /// A folder that scenes named over the network, and the files they name, must lie in
+    /// (repeatable; default: the folder of --config).
+    #[arg(long)]
+    scene_dir: Vec<PathBuf>,
+}
+
 fn parse_mode(s: &str) -> anyhow::Result<optistim::server::frames::Mode> {
     serde_json::from_value(serde_json::Value::String(s.into()))
         .with_context(|| format!("--mode {s}: allowed are free, lockstep"))
 }
 
 #[allow(clippy::too_many_arguments)]
-fn serve(
-    path: Option<PathBuf>,
-    listen: std::net::SocketAddr,
-    http: std::net::SocketAddr,
-    serial: Option<String>,
-    baud: u32,
-    present: &str,
-    monitor: String,
-    preview: bool,
-    mode: &str,
-    record: Option<PathBuf>,
-) -> anyhow::Result<()> {
-    use optistim::server::{self, frames::PresenterChoice};
+fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    use optistim::server::{self, access::Access, frames::PresenterChoice};
+    let ServeArgs {
+        config: path,
+        listen,
+        http,
+        serial,
+        baud,
+        present,
+        monitor,
+        preview,
+        mode,
+        record,
+        token_file,
+        insecure,
+        scene_dir,
+    } = args;
+    let token = token_file
+        .map(|f| Access::read_token_file(&f))
+        .transpose()?;
+    // Scenes named over the network stay in these folders: by default the config's own.
+    let scene_dirs = match (&scene_dir[..], &path) {
+        ([], Some(p)) => vec![
+            p.parent()
+                .filter(|d| !d.as_os_str().is_empty())
+                .map_or_else(|| PathBuf::from("."), PathBuf::from),
+        ],
+        _ => scene_dir,
+    };
+    let access = Access::new(token.as_deref(), &scene_dirs, insecure)?;
     let (text, label) = match &path {
         Some(p) => (
             std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?,
@@ -459,7 +486,7 @@ fn serve(
     };
     let cfg = config::parse(&text, &label)?;
     let sha = optistim::io::sha256_hex(text.as_bytes());
-    let presenter = match present {
+    let presenter = match present.as_str() {
         "auto" => PresenterChoice::Auto,
         "offscreen" => PresenterChoice::Offscreen,
         "cpu" => PresenterChoice::Cpu,
@@ -477,8 +504,9 @@ fn serve(
         http,
         serial: serial.map(|s| (s, baud)),
         presenter,
-        mode: parse_mode(mode)?,
+        mode: parse_mode(&mode)?,
         record,
+        access,
     })?;
     // The addresses as bound (port 0 picks a free one), for people and scripts.
     println!(

@@ -67,7 +67,7 @@ fn closed_loop_over_tcp_lockstep_then_free_running() {
     });
 
     let (r, w) = tcp_halves(daemon.tcp_addr);
-    let lock = replay::stream(r, w, &poses, 10.0, Mode::Lockstep, "tcp").unwrap();
+    let lock = replay::stream(r, w, &poses, 10.0, Mode::Lockstep, "tcp", None).unwrap();
     eprintln!(
         "lockstep over TCP: {}",
         serde_json::to_string(&lock).unwrap()
@@ -84,7 +84,7 @@ fn closed_loop_over_tcp_lockstep_then_free_running() {
     assert_eq!(camera_frames, 200);
 
     let (r, w) = tcp_halves(daemon.tcp_addr);
-    let free = replay::stream(r, w, &poses, 100.0, Mode::Free, "tcp").unwrap();
+    let free = replay::stream(r, w, &poses, 100.0, Mode::Free, "tcp", None).unwrap();
     eprintln!(
         "free-running over TCP: {}",
         serde_json::to_string(&free).unwrap()
@@ -127,6 +127,7 @@ fn closed_loop_over_a_pty_serial_line() {
         10.0,
         Mode::Lockstep,
         &path,
+        None,
     )
     .unwrap();
     eprintln!(

@@ -161,6 +161,7 @@ fn every_bad_message_gets_an_error_and_the_connection_stays_usable() {
             version_min: 7,
             version_max: 9,
             client: "future".into(),
+            token: None,
         }
         .encode(),
         ErrorCode::BadVersion,

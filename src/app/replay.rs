@@ -101,6 +101,7 @@ pub fn stream(
     rate_hz: f64,
     mode: Mode,
     to: &str,
+    token: Option<&str>,
 ) -> Result<ReplayReport, AppError> {
     let io = |e: std::io::Error| AppError::Replay(format!("{to}: {e}"));
     let (tx, rx) = mpsc::channel::<(Message, Instant)>();
@@ -134,6 +135,7 @@ pub fn stream(
         version_min: VERSION,
         version_max: VERSION,
         client: "optistim replay".into(),
+        token: token.map(str::to_string),
     };
     writer.write_all(&hello.encode()).map_err(io)?;
     let mode_json = serde_json::to_string(&serde_json::json!({ "mode": mode })).unwrap_or_default();
@@ -292,6 +294,7 @@ pub fn run(
     rate_hz: f64,
     frames: Option<usize>,
     mode: Mode,
+    token: Option<&str>,
 ) -> Result<ReplayReport, AppError> {
     let mut poses = read_poses(file)?;
     if let Some(n) = frames {
@@ -327,5 +330,5 @@ pub fn run(
                 .map_err(|e| AppError::Replay(format!("{to}: {e}")))?;
             (Box::new(s), Box::new(w))
         };
-    stream(reader, writer, &poses, rate_hz, mode, to)
+    stream(reader, writer, &poses, rate_hz, mode, to, token)
 }

@@ -35,6 +35,15 @@ pub enum ConfigError {
     },
     #[error("{file}: {message}")]
     Parse { file: String, message: String },
+    /// A file the scene names lies outside the folders a scene loaded over the network may
+    /// read (`optistim serve --scene-dir`).
+    #[error("{file}: {key} = {path:?}: {reason}")]
+    Confined {
+        file: String,
+        key: String,
+        path: String,
+        reason: String,
+    },
     #[error("{file}: {key} = {value}: {allowed}")]
     Invalid {
         file: String,
@@ -91,11 +100,36 @@ pub fn parse(text: &str, file: &str) -> Result<Config, ConfigError> {
         file: file.to_string(),
         message: e.to_string().trim_end().to_string(),
     })?;
-    Validator { file }.scene(raw)
+    Validator { file, allow: None }.scene(raw)
+}
+
+/// What a scene from an untrusted source may read: `Ok` for a file it may, or why not.
+pub type FileGuard<'a> = &'a dyn Fn(&Path) -> Result<(), String>;
+
+/// [`parse`] for a scene named by a client: every file it names (maps, curves, the error
+/// model) must pass `allow` before it is read, and a parse error says where, never what the
+/// text there is (the file may not be a scene at all).
+pub fn parse_confined(text: &str, file: &str, allow: FileGuard) -> Result<Config, ConfigError> {
+    let raw: RawScene = toml::from_str(text).map_err(|e| ConfigError::Parse {
+        file: file.to_string(),
+        message: match e.span() {
+            Some(span) => {
+                let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
+                format!("not a valid scene (TOML error on line {line})")
+            }
+            None => "not a valid scene".to_string(),
+        },
+    })?;
+    Validator {
+        file,
+        allow: Some(allow),
+    }
+    .scene(raw)
 }
 
 struct Validator<'a> {
     file: &'a str,
+    allow: Option<FileGuard<'a>>,
 }
 
 type R<T> = Result<T, ConfigError>;
@@ -241,7 +275,7 @@ impl Validator<'_> {
         let model = match raw.and_then(|b| b.model.as_deref()) {
             None => ErrorModel::shipped(),
             Some(m) => {
-                let path = self.path(m);
+                let path = self.path("render.budget.model", m)?;
                 match std::fs::read_to_string(&path) {
                     Ok(text) => ErrorModel::parse(&text, &path.display().to_string()),
                     Err(e) => return self.err("render.budget.model", m, &e.to_string()),
@@ -257,14 +291,24 @@ impl Validator<'_> {
         Ok(Some(BudgetFidelity { budget, model }))
     }
 
-    /// A path in the file, relative to the file's folder (`join` keeps an absolute one).
-    fn path(&self, p: &str) -> PathBuf {
+    /// A path in the file (at `key`), relative to the file's folder (`join` keeps an absolute
+    /// one); refused when the scene is confined and the path lies outside what it may read.
+    fn path(&self, key: &str, p: &str) -> R<PathBuf> {
         if p.starts_with(crate::stimulator::calibration::BUILTIN) {
-            return PathBuf::from(p);
+            return Ok(PathBuf::from(p));
         }
-        Path::new(self.file)
+        let path = Path::new(self.file)
             .parent()
-            .map_or_else(|| PathBuf::from(p), |d| d.join(p))
+            .map_or_else(|| PathBuf::from(p), |d| d.join(p));
+        if let Some(allow) = self.allow {
+            allow(&path).map_err(|reason| ConfigError::Confined {
+                file: self.file.to_string(),
+                key: key.to_string(),
+                path: p.to_string(),
+                reason,
+            })?;
+        }
+        Ok(path)
     }
 
     /// `body.hapke = [b, c, B0_C, h_C, B0_S, h_S, theta_rad, filling_factor]`, each in its
@@ -414,7 +458,7 @@ impl Validator<'_> {
             );
         }
         Ok(StimulatorConfig {
-            calibration: self.path(&s.calibration),
+            calibration: self.path("stimulator.calibration", &s.calibration)?,
             interp,
             screen_bits: bits,
             dither,
@@ -422,9 +466,17 @@ impl Validator<'_> {
             origin_px,
             scale,
             collimator_transmittance: t_col,
-            true_response: s.true_response.as_deref().map(|p| self.path(p)),
+            true_response: s
+                .true_response
+                .as_deref()
+                .map(|p| self.path("stimulator.true_response", p))
+                .transpose()?,
             corner_gain,
-            non_uniformity_map: s.screen_non_uniformity_map.as_deref().map(|p| self.path(p)),
+            non_uniformity_map: s
+                .screen_non_uniformity_map
+                .as_deref()
+                .map(|p| self.path("stimulator.screen_non_uniformity_map", p))
+                .transpose()?,
         })
     }
 
@@ -832,7 +884,7 @@ impl Validator<'_> {
         load: impl Fn(&Path, &crate::body::maps::Encoding) -> Result<T, crate::body::maps::MapError>,
     ) -> R<T> {
         let enc = self.encoding(key, m)?;
-        let path = self.path(&m.path);
+        let path = self.path(&format!("{key}.path"), &m.path)?;
         load(&path, &enc).or_else(|e| {
             self.err(
                 &format!("{key}.path"),

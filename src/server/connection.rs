@@ -79,10 +79,14 @@ where
         let _ = wr.shutdown().await;
     });
 
+    // A serial line is a cable on the bench; a TCP client shows the token when one is set.
+    let authenticated = peer.starts_with("serial:") || !shared.access.requires_token();
     let mut conn = Conn {
         shared: shared.clone(),
         out: out.clone(),
         peer: peer.clone(),
+        authenticated,
+        closing: false,
     };
     let mut decoder = Decoder::new(MAX_INBOUND_PAYLOAD);
     let mut line = Vec::new();
@@ -109,7 +113,7 @@ where
             Wire::Json => {
                 for &b in bytes {
                     if b == b'\n' {
-                        if !skipping_line {
+                        if !skipping_line && !conn.closing {
                             let text = String::from_utf8_lossy(&line).into_owned();
                             if !text.trim().is_empty() {
                                 conn.json_line(&text);
@@ -132,7 +136,7 @@ where
             }
             _ => {
                 decoder.push(bytes);
-                loop {
+                while !conn.closing {
                     match decoder.next_message() {
                         Decoded::Message(m) => conn.message(m),
                         Decoded::Error(e) => conn.error(e),
@@ -140,6 +144,10 @@ where
                     }
                 }
             }
+        }
+        if conn.closing {
+            tracing::warn!(%peer, "connection closed: no valid access token");
+            break;
         }
     }
     if let Some(e) = decoder.finish() {
@@ -166,6 +174,10 @@ struct Conn {
     shared: Arc<Shared>,
     out: Outbound,
     peer: String,
+    /// Whether the connection may do more than say hello ([`super::access`]).
+    authenticated: bool,
+    /// Set when the connection is to be closed (after its answers are written).
+    closing: bool,
 }
 
 impl Conn {
@@ -185,17 +197,51 @@ impl Conn {
         self.out.send(Message::from(e));
     }
 
+    /// Refuses the connection: an `unauthorized` error, then it closes.
+    fn refuse(&mut self, message: &str) {
+        self.error(ProtocolError::new(ErrorCode::Unauthorized, message));
+        self.closing = true;
+    }
+
     fn message(&mut self, m: Message) {
         let received = Instant::now();
         if let Some(r) = &self.shared.recorder {
-            r.message(&self.peer, self.shared.ns(received), &m);
+            match &m {
+                // The token stays out of the recording.
+                Message::Hello {
+                    version_min,
+                    version_max,
+                    client,
+                    token: Some(_),
+                } => r.message(
+                    &self.peer,
+                    self.shared.ns(received),
+                    &Message::Hello {
+                        version_min: *version_min,
+                        version_max: *version_max,
+                        client: client.clone(),
+                        token: Some("<redacted>".into()),
+                    },
+                ),
+                m => r.message(&self.peer, self.shared.ns(received), m),
+            }
+        }
+        if !self.authenticated && !matches!(m, Message::Hello { .. }) {
+            return self.refuse(
+                "this daemon asks for an access token: send hello with it before anything else",
+            );
         }
         match m {
             Message::Hello {
                 version_min,
                 version_max,
                 client,
+                token,
             } => {
+                if !self.shared.access.token_ok(token.as_deref()) {
+                    return self.refuse("hello: the access token is missing or wrong");
+                }
+                self.authenticated = true;
                 if !(version_min..=version_max).contains(&protocol::VERSION) {
                     return self.error(ProtocolError::new(
                         ErrorCode::BadVersion,

@@ -8,7 +8,7 @@ use crate::stimulator::calibration::Curve;
 use axum::Router;
 use axum::body::Bytes;
 use axum::extract::State;
-use axum::http::{StatusCode, header};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use serde_json::json;
@@ -81,7 +81,13 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
             })
         }
     };
+    let access = json!({
+        "token": s.access.requires_token(),
+        "insecure": s.access.insecure(),
+        "scene_dirs": s.access.scene_dirs(),
+    });
     axum::Json(json!({
+        "access": access,
         "fidelity": fidelity,
         "fps": fps,
         "latency_ms": {"p50": p50, "p99": p99, "max": max},
@@ -162,6 +168,25 @@ async fn camera_png(State(s): State<Arc<Shared>>) -> Response {
     png(r.unwrap_or_else(|e| Err(e.to_string())))
 }
 
+/// A mutating call's refusal when the daemon has an access token and the request does not
+/// carry it (`Authorization: Bearer TOKEN`, compared in constant time).
+fn unauthorized(s: &Shared, headers: &HeaderMap) -> Option<Response> {
+    let given = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok());
+    if s.access.bearer_ok(given) {
+        return None;
+    }
+    Some(
+        (
+            StatusCode::UNAUTHORIZED,
+            [(header::WWW_AUTHENTICATE, "Bearer")],
+            "this daemon asks for its access token: Authorization: Bearer TOKEN\n",
+        )
+            .into_response(),
+    )
+}
+
 async fn get_calibration(State(s): State<Arc<Shared>>) -> Response {
     let (id, sha) = s
         .calibration
@@ -173,7 +198,14 @@ async fn get_calibration(State(s): State<Arc<Shared>>) -> Response {
 
 /// Replays an uploaded curve (the CSV of `calibration/README.md`). A curve that does not
 /// validate is refused with the reason, and the active one stays.
-async fn put_calibration(State(s): State<Arc<Shared>>, body: Bytes) -> Response {
+async fn put_calibration(
+    State(s): State<Arc<Shared>>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Response {
+    if let Some(refused) = unauthorized(&s, &headers) {
+        return refused;
+    }
     let interp = s
         .scene()
         .config
@@ -221,7 +253,10 @@ async fn get_config(State(s): State<Arc<Shared>>) -> Response {
     axum::Json(s.runtime()).into_response()
 }
 
-async fn put_config(State(s): State<Arc<Shared>>, body: Bytes) -> Response {
+async fn put_config(State(s): State<Arc<Shared>>, headers: HeaderMap, body: Bytes) -> Response {
+    if let Some(refused) = unauthorized(&s, &headers) {
+        return refused;
+    }
     let patch: Result<super::RuntimePatch, _> = serde_json::from_slice(&body);
     // A new scene is loaded and built on the blocking pool.
     let applied = tokio::task::spawn_blocking(move || {

@@ -8,6 +8,7 @@
 //! rayon pool); with a window, one display thread runs the winit event loop; a serial line
 //! has a reader and a writer thread. They meet in [`Shared`] and the [`frames::Intake`].
 
+pub mod access;
 pub mod connection;
 pub mod frames;
 pub mod http;
@@ -37,6 +38,8 @@ use tokio::sync::{mpsc, watch};
 pub const DEFAULT_CONFIG: &str = include_str!("../../config/daemon.toml");
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
 pub const DEFAULT_HTTP: &str = "127.0.0.1:7879";
+/// The largest scene file a client may name [bytes].
+pub const MAX_SCENE_BYTES: u64 = 1 << 20;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ServerError {
@@ -59,6 +62,8 @@ pub enum ServerError {
     Serial { path: String, message: String },
     #[error("runtime: {0}")]
     Runtime(String),
+    #[error(transparent)]
+    Access(#[from] access::AccessError),
 }
 
 /// How to run the daemon.
@@ -73,6 +78,8 @@ pub struct ServeOptions {
     pub presenter: PresenterChoice,
     pub mode: Mode,
     pub record: Option<PathBuf>,
+    /// The access token, the scene folders, `--insecure` ([`access`]).
+    pub access: access::Access,
 }
 
 /// Settings that may change while the daemon runs (`GET/PUT /config`, the `config` message).
@@ -270,6 +277,7 @@ pub struct Shared {
     pub recorder: Option<record::Recorder>,
     next_conn: std::sync::atomic::AtomicU64,
     pub shutdown: watch::Receiver<bool>,
+    pub access: access::Access,
     /// The cancel flag of the scene's DEM-horizon warm-up, while one runs.
     horizon_warmup: Mutex<Option<Arc<std::sync::atomic::AtomicBool>>>,
 }
@@ -371,20 +379,34 @@ impl Shared {
         Ok(())
     }
 
-    /// Loads and checks a scene for the screen in use, and builds its pipeline.
+    /// Loads and checks a scene named by a client for the screen in use, and builds its
+    /// pipeline. The scene and every file it names must lie in the scene folders
+    /// ([`access`]); nothing read elsewhere, nor a file that is not a scene, is echoed.
     fn load_scene(
         &self,
-        path: &str,
+        named: &str,
         current: &SceneState,
     ) -> Result<(SceneState, FrameMaker), String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("scene {path}: {e}"))?;
-        let config = crate::config::parse(&text, path).map_err(|e| e.to_string())?;
+        let file = self.access.scene_path(named)?;
+        let path = file.display().to_string();
+        // A scene is a few kilobytes of TOML; anything much larger is not one.
+        let len = std::fs::metadata(&file).map_or(0, |m| m.len());
+        if len > MAX_SCENE_BYTES {
+            return Err(format!(
+                "scene {path}: {len} bytes; a scene file is at most {MAX_SCENE_BYTES}"
+            ));
+        }
+        let text = std::fs::read_to_string(&file).map_err(|e| format!("scene {path}: {e}"))?;
+        let allow = |p: &std::path::Path| self.access.allows(p);
+        let config =
+            crate::config::parse_confined(&text, &path, &allow).map_err(|e| e.to_string())?;
         let (Some(new), Some(old)) = (&config.stimulator, &current.config.stimulator) else {
             return Err(format!("scene {path}: no [stimulator] section"));
         };
         if (new.screen_px, new.screen_bits) != (old.screen_px, old.screen_bits) {
             return Err(format!(
-                "scene {path}: a {:?} px {}-bit screen; the daemon drives a {:?} px {}-bit                  one (a different screen needs a restart)",
+                "scene {path}: a {:?} px {}-bit screen; the daemon drives a {:?} px {}-bit \
+                 one (a different screen needs a restart)",
                 new.screen_px, new.screen_bits, old.screen_px, old.screen_bits
             ));
         }
@@ -466,6 +488,8 @@ impl Server {
                 .block_on(tokio::net::TcpListener::bind(addr))
                 .map_err(|source| ServerError::Bind { what, addr, source })
         };
+        options.access.check_bind("pose listener", options.listen)?;
+        options.access.check_bind("HTTP listener", options.http)?;
         let tcp = bind("pose listener", options.listen)?;
         let http_listener = bind("HTTP listener", options.http)?;
         let tcp_addr = tcp
@@ -526,6 +550,7 @@ impl Server {
             recorder,
             next_conn: std::sync::atomic::AtomicU64::new(1),
             shutdown: stop_rx.clone(),
+            access: options.access.clone(),
             horizon_warmup: Mutex::new(None),
         });
         shared

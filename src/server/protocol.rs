@@ -58,6 +58,9 @@ pub enum ErrorCode {
     Truncated = 11,
     /// The daemon is shutting down; the pose was not rendered.
     ShuttingDown = 12,
+    /// The daemon asks for an access token and the connection has not given it in its
+    /// `hello`; the connection is closed.
+    Unauthorized = 13,
 }
 
 impl ErrorCode {
@@ -76,6 +79,7 @@ impl ErrorCode {
             10 => BadConfig,
             11 => Truncated,
             12 => ShuttingDown,
+            13 => Unauthorized,
             _ => Malformed,
         }
     }
@@ -216,6 +220,10 @@ pub enum Message {
         version_min: u8,
         version_max: u8,
         client: String,
+        /// The access token, when the daemon asks for one (`serve --token-file`); a binary
+        /// hello carries it as an optional trailing string. Never recorded.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        token: Option<String>,
     },
     Pose(PoseMsg),
     /// Run-time settings, a JSON object (`docs/protocol.md`: the keys of `GET /config`).
@@ -288,10 +296,14 @@ impl Message {
                 version_min,
                 version_max,
                 client,
+                token,
             } => {
                 w.u8(*version_min);
                 w.u8(*version_max);
                 w.str(client);
+                if let Some(t) = token {
+                    w.str(t);
+                }
             }
             Message::Pose(p) => {
                 w.u64(p.frame_id);
@@ -387,6 +399,11 @@ impl Message {
                 version_min: r.u8()?,
                 version_max: r.u8()?,
                 client: r.str()?,
+                token: if r.i < payload.len() {
+                    Some(r.str()?)
+                } else {
+                    None
+                },
             },
             kind::POSE => {
                 let frame_id = r.u64()?;
@@ -761,6 +778,13 @@ mod tests {
                 version_min: 1,
                 version_max: 1,
                 client: "gnc".into(),
+                token: None,
+            },
+            Message::Hello {
+                version_min: 1,
+                version_max: 2,
+                client: "gnc".into(),
+                token: Some("0123456789abcdef".into()),
             },
             pose(),
             Message::Config {

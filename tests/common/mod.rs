@@ -142,8 +142,26 @@ pub fn start_daemon(
     serial: Option<String>,
     record: Option<std::path::PathBuf>,
 ) -> optistim::server::Server {
+    optistim::server::Server::start(serve_options(
+        config_text,
+        presenter,
+        mode,
+        serial,
+        record,
+    ))
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// What [`start_daemon`] starts, for tests that change something first.
+pub fn serve_options(
+    config_text: &str,
+    presenter: optistim::server::frames::PresenterChoice,
+    mode: optistim::server::frames::Mode,
+    serial: Option<String>,
+    record: Option<std::path::PathBuf>,
+) -> optistim::server::ServeOptions {
     let cfg = config::parse(config_text, "<test daemon>").unwrap_or_else(|e| panic!("{e}"));
-    optistim::server::Server::start(optistim::server::ServeOptions {
+    optistim::server::ServeOptions {
         config: cfg,
         config_label: "<test daemon>".into(),
         config_sha256: "test".into(),
@@ -153,8 +171,10 @@ pub fn start_daemon(
         presenter,
         mode,
         record,
-    })
-    .unwrap_or_else(|e| panic!("{e}"))
+        // Tests name scenes they write under the temporary folder.
+        access: optistim::server::access::Access::new(None, &[std::env::temp_dir()], false)
+            .unwrap(),
+    }
 }
 
 /// The daemon's default scene made small (a 256 x 256 camera on a 512 x 512 screen), for
@@ -170,13 +190,25 @@ pub fn small_daemon_config() -> String {
 
 /// One HTTP/1.1 request with `Connection: close`: the status code and the body.
 pub fn http(addr: std::net::SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, Vec<u8>) {
+    http_with(addr, method, path, &[], body)
+}
+
+/// [`http`] with extra header lines (`"Authorization: Bearer ..."`).
+pub fn http_with(
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[&str],
+    body: &[u8],
+) -> (u16, Vec<u8>) {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(std::time::Duration::from_secs(60)))
         .unwrap();
+    let extra: String = headers.iter().map(|h| format!("{h}\r\n")).collect();
     write!(
         s,
-        "{method} {path} HTTP/1.1\r\nHost: test\r\nConnection: close\r\nContent-Length: {}\r\n\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: test\r\nConnection: close\r\n{extra}Content-Length: {}\r\n\r\n",
         body.len()
     )
     .unwrap();

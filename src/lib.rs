@@ -25,7 +25,7 @@
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs (in memory too), grayscale PNG input (photographs), SHA-256 content hashes |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
-//! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics, the recording |
+//! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, access (token, non-loopback binds, scene folders), the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics (a background thread; images made once per frame by `views`), the recording |
 //! | [`app`] | the commands behind the binary: `render` (the quadrangle pipeline or `--reference`), `sweep` (the speed-accuracy front and its chart; `--fit` the planner's error model), `verify-budget` (the planner against the reference over a pose stream), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
 //!
 //! # Data flow of one frame
@@ -56,7 +56,9 @@
 //!
 //! server (optistim serve): TCP | serial ─► protocol::Decoder ─► connection ─► frames::Intake
 //!   ─► frame thread: pipeline::FrameMaker → Presenter → ack (+ camera frame to subscribers)
-//!   http (axum): status, metrics, latest images, calibration replay, run-time settings
+//!   access: token on hellos and mutating HTTP calls; scenes only from the scene folders
+//!   http (axum, background thread): status, metrics, calibration replay, run-time settings,
+//!   images ◄─ views (one background worker, each image made once per frame, cached)
 //! ```
 //!
 //! Rules: nothing below `app` knows about files except `config`, `trajectory`, `io` and the

@@ -8,7 +8,7 @@ use common::*;
 use optistim::server::access::{Access, AccessError};
 use optistim::server::frames::{Mode, PresenterChoice};
 use optistim::server::protocol::{ErrorCode, Message, VERSION};
-use optistim::server::{ServerError, ServeOptions};
+use optistim::server::{ServeOptions, ServerError};
 use std::time::Duration;
 
 const TOKEN: &str = "s3cret-bench-token-0123";
@@ -48,7 +48,8 @@ fn refused_and_closed(c: &mut Client) {
         }
         other => panic!("expected an unauthorized error, got {other:?}"),
     }
-    assert!(c.recv(WAIT).is_none(), "the connection stays open");
+    let next = c.recv(WAIT);
+    assert!(next.is_none(), "the connection stays open: {next:?}");
 }
 
 #[test]
@@ -161,7 +162,10 @@ fn the_token_stays_out_of_the_recording() {
     assert!(matches!(c.recv(WAIT), Some(Message::HelloAck { .. })));
     d.shutdown();
     let text = std::fs::read_to_string(&rec).unwrap();
-    assert!(text.contains("\"hello\"") && text.contains("<redacted>"), "{text}");
+    assert!(
+        text.contains("\"hello\"") && text.contains("<redacted>"),
+        "{text}"
+    );
     assert!(!text.contains(TOKEN), "{text}");
 }
 
@@ -209,7 +213,10 @@ fn scenes_named_over_the_network_stay_in_the_scene_folders() {
         let (code, body) = put(scene);
         assert_eq!(code, 422, "{scene}: {body}");
         assert!(body.contains(why), "{scene}: {body}");
-        assert!(!body.contains("SECRET") && !body.contains("root:"), "{scene}: {body}");
+        assert!(
+            !body.contains("SECRET") && !body.contains("root:"),
+            "{scene}: {body}"
+        );
     }
     // The same rule over the pose connection's config message.
     let mut c = Client::connect(d.tcp_addr);
@@ -236,7 +243,12 @@ fn without_a_scene_folder_no_scene_is_named_over_the_network() {
     let mut o = options();
     o.access = Access::default();
     let d = optistim::server::Server::start(o).unwrap();
-    let (code, body) = http(d.http_addr, "PUT", "/config", br#"{"scene":"/etc/passwd.toml"}"#);
+    let (code, body) = http(
+        d.http_addr,
+        "PUT",
+        "/config",
+        br#"{"scene":"/etc/passwd.toml"}"#,
+    );
     assert_eq!(code, 422);
     assert!(String::from_utf8_lossy(&body).contains("--scene-dir"));
 }

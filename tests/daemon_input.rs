@@ -502,19 +502,25 @@ fn the_dashboard_renders_and_updates_in_headless_chromium() {
         still_serves(&mut c, i);
     }
     let profile = std::env::temp_dir().join(format!("optistim-chromium-{}", std::process::id()));
-    let out = std::process::Command::new(chromium)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--no-first-run",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .args(["--virtual-time-budget=3000", "--dump-dom"])
-        .arg(format!("http://{}/", d.http_addr))
-        .output()
-        .expect("run chromium");
-    let _ = std::fs::remove_dir_all(&profile);
+    let shot = profile.with_extension("png");
+    let run = |extra: &[String]| {
+        std::process::Command::new(chromium)
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--no-first-run",
+                "--hide-scrollbars",
+                "--window-size=1400,900",
+            ])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .arg("--virtual-time-budget=4000")
+            .args(extra)
+            .arg(format!("http://{}/", d.http_addr))
+            .output()
+            .expect("run chromium")
+    };
+    let out = run(&["--dump-dom".into()]);
     let dom = String::from_utf8_lossy(&out.stdout);
     let updates: u32 = dom
         .split("data-updates=\"")
@@ -523,6 +529,46 @@ fn the_dashboard_renders_and_updates_in_headless_chromium() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("the page never updated: {dom}"));
     assert!(updates >= 2, "{updates} updates");
-    assert!(dom.contains("src=\"/frame/latest.png?f=2\""), "{dom}");
     assert!(dom.contains("<td>frames presented</td><td>3</td>"), "{dom}");
+    // Both images of the latest frame, with their scale stated.
+    assert_eq!(dom.matches("data-frame=\"2\"").count(), 2, "{dom}");
+    assert!(dom.contains("grey linear in DN, white = "), "{dom}");
+    assert!(dom.contains("render / signal / stimulator [ms]"), "{dom}");
+    assert!(dom.contains("fixed settings: no prediction"), "{dom}");
+
+    // The Moon is visible: the screenshot has lit grey pixels (the page's text and chrome are
+    // tinted, so grey above the threshold is the images' doing), from both images.
+    let _ = run(&[format!("--screenshot={}", shot.display())]);
+    let decoder = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(&shot).expect("chromium wrote no screenshot"),
+    ));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let channels = info.color_type.samples();
+    let (w, h) = (info.width as usize, info.height as usize);
+    let lit = |x0: usize, x1: usize| {
+        (0..h)
+            .flat_map(|y| (x0..x1).map(move |x| (y * w + x) * channels))
+            .filter(|&i| {
+                let (r, g, b) = (buf[i], buf[i + 1], buf[i + 2]);
+                r == g && g == b && r >= 60
+            })
+            .count()
+    };
+    let (left, right) = (lit(0, w / 3), lit(w / 3, 2 * w / 3));
+    let _ = std::fs::remove_dir_all(&profile);
+    if let Some(keep) = std::env::var_os("OPTISTIM_KEEP_SCREENSHOT") {
+        let _ = std::fs::copy(&shot, keep);
+    }
+    let _ = std::fs::remove_file(&shot);
+    eprintln!("lit grey pixels in the screenshot: screen {left}, camera {right}");
+    assert!(
+        left > 200,
+        "the Moon is not visible on the screen's image: {left} lit pixels"
+    );
+    assert!(
+        right > 200,
+        "the Moon is not visible on the camera's image: {right} lit pixels"
+    );
 }

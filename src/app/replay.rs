@@ -46,6 +46,9 @@ pub struct ReplayReport {
     pub latency_ms: Latency,
     /// Daemon side: pose received -> presented [ms], from the acks' time stamps.
     pub daemon_latency_ms: Latency,
+    /// The same per presented frame, in the order the acks came.
+    #[serde(skip)]
+    pub daemon_latencies_ms: Vec<f64>,
     /// Daemon side, what the latency adds to the frame's render time (queueing, presenting)
     /// [ms]: `presented - received - render_ms`.
     pub overhead_ms: Latency,
@@ -212,6 +215,7 @@ pub fn stream(
         .count();
     r.elapsed_s = t0.elapsed().as_secs_f64();
     r.latency_ms = percentiles(t.lat);
+    r.daemon_latencies_ms = t.dlat.clone();
     r.daemon_latency_ms = percentiles(t.dlat);
     r.overhead_ms = percentiles(t.overhead);
     r.render_ms = percentiles(t.render);

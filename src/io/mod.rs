@@ -44,6 +44,21 @@ pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Re
     write_png(path, encode_png(width, height, color, depth, rgb))
 }
 
+/// An 8-bit RGB PNG in memory (`rgb` holds 3 bytes per pixel).
+pub fn encode_png_rgb(
+    width: usize,
+    height: usize,
+    rgb: &[u8],
+) -> Result<Vec<u8>, png::EncodingError> {
+    encode_png(
+        width,
+        height,
+        png::ColorType::Rgb,
+        png::BitDepth::Eight,
+        rgb,
+    )
+}
+
 /// Writes an encoded PNG to `path`, naming it in either error.
 fn write_png(path: &Path, encoded: Result<Vec<u8>, png::EncodingError>) -> Result<(), IoError> {
     let p = path.display().to_string();

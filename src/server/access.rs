@@ -31,7 +31,10 @@ pub enum AccessError {
          --token-file FILE (clients then authenticate with it), or --insecure to serve \
          anyone who can reach the port"
     )]
-    OpenWithoutToken { what: &'static str, addr: SocketAddr },
+    OpenWithoutToken {
+        what: &'static str,
+        addr: SocketAddr,
+    },
 }
 
 /// The daemon's access rules (see the module's documentation).
@@ -146,7 +149,11 @@ impl Access {
 
     /// The `Authorization: Bearer TOKEN` header's verdict.
     pub fn bearer_ok(&self, header: Option<&str>) -> bool {
-        self.token_ok(header.and_then(|h| h.strip_prefix("Bearer ")).map(str::trim))
+        self.token_ok(
+            header
+                .and_then(|h| h.strip_prefix("Bearer "))
+                .map(str::trim),
+        )
     }
 
     pub fn scene_dirs(&self) -> &[PathBuf] {
@@ -235,7 +242,12 @@ mod tests {
     fn the_token_is_checked_whole() {
         let a = Access::new(Some("0123456789abcdef"), &[], false).unwrap();
         assert!(a.token_ok(Some("0123456789abcdef")));
-        for bad in [None, Some(""), Some("0123456789abcde"), Some("0123456789abcdeF")] {
+        for bad in [
+            None,
+            Some(""),
+            Some("0123456789abcde"),
+            Some("0123456789abcdeF"),
+        ] {
             assert!(!a.token_ok(bad), "{bad:?}");
         }
         assert!(a.bearer_ok(Some("Bearer 0123456789abcdef")));
@@ -251,7 +263,12 @@ mod tests {
         assert!(Access::default().check_bind("HTTP", lo).is_ok());
         let e = Access::default().check_bind("HTTP", any).unwrap_err();
         assert!(e.to_string().contains("--token-file"), "{e}");
-        assert!(Access::new(None, &[], true).unwrap().check_bind("HTTP", any).is_ok());
+        assert!(
+            Access::new(None, &[], true)
+                .unwrap()
+                .check_bind("HTTP", any)
+                .is_ok()
+        );
         let t = Access::new(Some("0123456789abcdef"), &[], false).unwrap();
         assert!(t.check_bind("HTTP", any).is_ok());
     }
@@ -264,7 +281,12 @@ mod tests {
         let a = Access::new(None, std::slice::from_ref(&d), false).unwrap();
         assert!(a.scene_path("a.toml").is_ok());
         assert!(a.scene_path(d.join("a.toml").to_str().unwrap()).is_ok());
-        for bad in ["/etc/shadow", "../../../../etc/passwd", "a.txt", "/etc/x.toml"] {
+        for bad in [
+            "/etc/shadow",
+            "../../../../etc/passwd",
+            "a.txt",
+            "/etc/x.toml",
+        ] {
             let e = a.scene_path(bad).unwrap_err();
             assert!(!e.contains("root"), "{e}");
         }

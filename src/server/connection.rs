@@ -150,10 +150,13 @@ where
             break;
         }
     }
-    if let Some(e) = decoder.finish() {
+    // A refused connection's unread bytes are nobody's business.
+    if !conn.closing
+        && let Some(e) = decoder.finish()
+    {
         conn.error(e);
     }
-    if !line.is_empty() && !skipping_line {
+    if !conn.closing && !line.is_empty() && !skipping_line {
         conn.error(ProtocolError::new(
             ErrorCode::Truncated,
             format!("the stream ended inside a JSON line ({} bytes)", line.len()),

@@ -314,13 +314,23 @@ impl FrameThread {
             }
         };
         let render_end = Instant::now();
-        if let Some(p) = &made.plan {
-            *self
-                .shared
-                .last_plan
-                .lock()
-                .unwrap_or_else(|e| e.into_inner()) = Some((made.frame_id, p.clone()));
-        }
+        *self
+            .shared
+            .last_frame
+            .lock()
+            .unwrap_or_else(|e| e.into_inner()) = Some(super::FrameReport {
+            frame_id: made.frame_id,
+            stage_ms: made.timings_ms,
+            render_steps_ms: made.stats.timings_ms,
+            phase_deg: made.stats.phase_deg,
+            covered_px: made.stats.covered_px,
+            clips: made
+                .stimulator
+                .as_ref()
+                .map(|s| s.clips)
+                .unwrap_or_default(),
+            plan: made.plan.clone(),
+        });
         if self.shared.runtime().hold {
             let held = Held {
                 job,
@@ -374,6 +384,7 @@ impl FrameThread {
         );
         let config = self.maker.stimulator().expect("has one").config();
         let latest = Arc::new(super::ScreenImage {
+            seq: self.shared.stats.frames_presented.get(),
             frame_id,
             exposure_s: h.job.exposure_s,
             screen_px: config.screen_px,
@@ -475,6 +486,10 @@ impl FrameThread {
         };
         match camera.capture_exposed(&latest.dn, latest.frame_id, latest.exposure_s) {
             Ok(c) => {
+                // The camera views of HTTP reuse this capture.
+                self.shared
+                    .views
+                    .offer_camera(latest.seq, Arc::new(c.dn.clone()));
                 let [w, h] = camera.camera_px();
                 let msg = Message::CameraFrame {
                     frame_id: latest.frame_id,

@@ -1,9 +1,11 @@
 //! HTTP control and monitoring (its own port): health, status, Prometheus metrics, the latest
 //! screen and camera images, calibration replay, run-time settings and a small live
-//! dashboard. Images are encoded on the blocking pool, never on the runtime's workers.
+//! dashboard. Images come from [`super::views`] (made at most once per frame, at a low
+//! priority), never from the runtime's workers.
 
 use super::Shared;
 use super::frames::Control;
+use super::views::{Get, View};
 use crate::stimulator::calibration::Curve;
 use axum::Router;
 use axum::body::Bytes;
@@ -25,7 +27,9 @@ pub async fn serve(listener: TcpListener, shared: Arc<Shared>) {
         .route("/status", get(status))
         .route("/metrics", get(metrics))
         .route("/frame/latest.png", get(frame_png))
+        .route("/frame/view.png", get(frame_view))
         .route("/camera/latest.png", get(camera_png))
+        .route("/camera/view.png", get(camera_view))
         .route(
             "/calibration",
             axum::routing::put(put_calibration).get(get_calibration),
@@ -65,22 +69,23 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         .as_ref()
         .and_then(|r| r.dem_horizon.as_ref())
         .map(|h| json!({"computed_texels": h.computed_texels(), "texels": h.texels()}));
+    let last_frame = s
+        .last_frame
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
     // Fixed settings, or the budget and what the planner chose for the latest frame.
     let fidelity = match &scene.config.fidelity {
         None => json!({"mode": "fixed"}),
-        Some(f) => {
-            let last = s
-                .last_plan
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .clone();
-            json!({
-                "mode": "budget",
-                "budget": f.budget,
-                "last_frame": last.map(|(id, p)| json!({"frame_id": id, "plan": p})),
-            })
-        }
+        Some(f) => json!({
+            "mode": "budget",
+            "budget": f.budget,
+            "last_frame": last_frame.as_ref().and_then(|l| {
+                l.plan.as_ref().map(|p| json!({"frame_id": l.frame_id, "plan": p}))
+            }),
+        }),
     };
+    let (images_made, captures_made) = s.views.made();
     let access = json!({
         "token": s.access.requires_token(),
         "insecure": s.access.insecure(),
@@ -105,6 +110,8 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         "presenter": s.presenter,
         "latest_frame_id": latest,
         "dem_horizon": horizon,
+        "last_frame": last_frame,
+        "views": {"images_made": images_made, "camera_captures": captures_made},
     }))
     .into_response()
 }
@@ -124,48 +131,91 @@ async fn metrics(State(s): State<Arc<Shared>>) -> Response {
     }
 }
 
-fn png(bytes: Result<Vec<u8>, String>) -> Response {
-    match bytes {
-        Ok(b) => ([(header::CONTENT_TYPE, "image/png")], b).into_response(),
-        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
-    }
-}
-
 fn no_frame() -> Response {
     (StatusCode::NOT_FOUND, "no frame presented yet\n").into_response()
 }
 
 /// The latest screen, its DN codes in a 16-bit PNG.
 async fn frame_png(State(s): State<Arc<Shared>>) -> Response {
-    let Some(latest) = s.latest.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
-        return no_frame();
-    };
-    let r = tokio::task::spawn_blocking(move || {
-        let [w, h] = latest.screen_px;
-        crate::io::encode_png_gray(w, h, &latest.dn, 16).map_err(|e| e.to_string())
-    })
-    .await;
-    png(r.unwrap_or_else(|e| Err(e.to_string())))
+    view(&s, View::ScreenCodes).await
+}
+
+/// The latest screen scaled for viewing (8-bit RGB; clipped pixels red; the scale in the
+/// `X-Optistim-*` headers).
+async fn frame_view(State(s): State<Arc<Shared>>) -> Response {
+    view(&s, View::ScreenView).await
 }
 
 /// The simulated camera's image of the latest screen, in its DN.
 async fn camera_png(State(s): State<Arc<Shared>>) -> Response {
+    view(&s, View::CameraDn).await
+}
+
+/// The simulated camera's image scaled for viewing (saturated pixels red).
+async fn camera_view(State(s): State<Arc<Shared>>) -> Response {
+    view(&s, View::CameraView).await
+}
+
+/// A view of the latest presented frame, from the image cache ([`super::views`]): made at
+/// most once per frame, by a worker at a lower priority than the frame thread.
+async fn view(s: &Shared, which: View) -> Response {
     let Some(latest) = s.latest.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
         return no_frame();
     };
-    let Some(camera) = s.scene().camera else {
+    let scene = s.scene();
+    if which.is_camera() && scene.camera.is_none() {
         return (StatusCode::NOT_FOUND, "no simulated camera\n").into_response();
+    }
+    let bits = scene
+        .config
+        .stimulator
+        .as_ref()
+        .map_or(16, |st| st.screen_bits);
+    let answer = match s.views.get(which, latest, bits, scene.camera) {
+        Get::Ready(a) => a,
+        Get::Wait(rx) => rx
+            .await
+            .unwrap_or_else(|_| Err("the image worker stopped".into())),
     };
-    let r = tokio::task::spawn_blocking(move || {
-        let c = camera
-            .capture_exposed(&latest.dn, latest.frame_id, latest.exposure_s)
-            .map_err(|e| e.to_string())?;
-        let [w, h] = camera.camera_px();
-        crate::io::encode_png_gray(w, h, &c.dn, camera.detector().saved_bits)
-            .map_err(|e| e.to_string())
-    })
-    .await;
-    png(r.unwrap_or_else(|e| Err(e.to_string())))
+    match answer {
+        Ok(img) => {
+            let mut headers = vec![
+                (header::CONTENT_TYPE, "image/png".to_string()),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+                (
+                    header::HeaderName::from_static("x-optistim-frame-id"),
+                    img.frame_id.to_string(),
+                ),
+            ];
+            if let Some(sc) = img.scale {
+                for (name, v) in [
+                    ("x-optistim-white-dn", sc.white_dn.to_string()),
+                    ("x-optistim-clip-dn", sc.clip_dn.to_string()),
+                    ("x-optistim-clipped-px", sc.clipped_px.to_string()),
+                ] {
+                    headers.push((header::HeaderName::from_static(name), v));
+                }
+            }
+            let mut r = img.png.clone().into_response();
+            for (k, v) in headers {
+                if let Ok(v) = header::HeaderValue::from_str(&v) {
+                    r.headers_mut().insert(k, v);
+                }
+            }
+            r
+        }
+        Err(e) if e == super::views::BUSY => (StatusCode::SERVICE_UNAVAILABLE, e).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
+    }
+}
+
+async fn get_calibration(State(s): State<Arc<Shared>>) -> Response {
+    let (id, sha) = s
+        .calibration
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    axum::Json(json!({"id": id, "sha256": sha})).into_response()
 }
 
 /// A mutating call's refusal when the daemon has an access token and the request does not
@@ -185,15 +235,6 @@ fn unauthorized(s: &Shared, headers: &HeaderMap) -> Option<Response> {
         )
             .into_response(),
     )
-}
-
-async fn get_calibration(State(s): State<Arc<Shared>>) -> Response {
-    let (id, sha) = s
-        .calibration
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .clone();
-    axum::Json(json!({"id": id, "sha256": sha})).into_response()
 }
 
 /// Replays an uploaded curve (the CSV of `calibration/README.md`). A curve that does not

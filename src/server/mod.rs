@@ -15,6 +15,7 @@ pub mod http;
 pub mod protocol;
 pub mod record;
 pub mod serial;
+pub mod views;
 
 use crate::config::Config;
 use crate::pipeline::FrameMaker;
@@ -109,10 +110,30 @@ pub struct RuntimePatch {
 
 /// The latest presented screen.
 pub struct ScreenImage {
+    /// Frames presented before this one (the daemon's own count; client frame ids need not
+    /// grow).
+    pub seq: u64,
     pub frame_id: u64,
     pub exposure_s: Option<f64>,
     pub screen_px: [usize; 2],
     pub dn: Vec<u16>,
+}
+
+/// What the dashboard and `/status` show of the latest rendered frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    pub frame_id: u64,
+    /// Per stage of the frame pipeline [ms]: render, signal, stimulator chain.
+    pub stage_ms: crate::pipeline::FrameTimings,
+    /// The renderer's own steps [ms].
+    pub render_steps_ms: crate::render::StageTimings,
+    pub phase_deg: f64,
+    /// Pixels of lit, visible surface.
+    pub covered_px: f64,
+    pub clips: crate::stimulator::calibration::ClipCounts,
+    /// With `fidelity = "budget"`: the settings chosen and the error they are predicted to
+    /// make against the converged reference.
+    pub plan: Option<crate::fidelity::budget::Plan>,
 }
 
 /// A connection's outbound queue: bounded, so that a client that does not read cannot grow
@@ -266,8 +287,6 @@ pub struct Shared {
     pub stats: Stats,
     runtime: Mutex<RuntimeConfig>,
     pub latest: Mutex<Option<Arc<ScreenImage>>>,
-    /// The fidelity planner's choice for the latest rendered frame (frame id, plan).
-    pub last_plan: Mutex<Option<(u64, crate::fidelity::budget::Plan)>>,
     /// The active curve's id and SHA-256.
     pub calibration: Mutex<(String, String)>,
     pub presenter: String,
@@ -278,6 +297,10 @@ pub struct Shared {
     next_conn: std::sync::atomic::AtomicU64,
     pub shutdown: watch::Receiver<bool>,
     pub access: access::Access,
+    /// The images HTTP serves, made at most once per frame at a low priority.
+    pub views: Arc<views::Views>,
+    /// The latest rendered frame's report: stage times, clips, the planner's choice.
+    pub last_frame: Mutex<Option<FrameReport>>,
     /// The cancel flag of the scene's DEM-horizon warm-up, while one runs.
     horizon_warmup: Mutex<Option<Arc<std::sync::atomic::AtomicBool>>>,
 }
@@ -459,6 +482,7 @@ pub struct Server {
     stop: watch::Sender<bool>,
     runtime: Option<tokio::runtime::Runtime>,
     frame_thread: Option<std::thread::JoinHandle<()>>,
+    http_thread: Option<std::thread::JoinHandle<()>>,
 }
 
 /// What happened at shutdown.
@@ -491,7 +515,15 @@ impl Server {
         options.access.check_bind("pose listener", options.listen)?;
         options.access.check_bind("HTTP listener", options.http)?;
         let tcp = bind("pose listener", options.listen)?;
-        let http_listener = bind("HTTP listener", options.http)?;
+        // HTTP runs on its own runtime, on a background thread: watching never takes the
+        // frames' CPU (tests/watching.rs).
+        let http_listener = std::net::TcpListener::bind(options.http)
+            .and_then(|l| l.set_nonblocking(true).map(|()| l))
+            .map_err(|source| ServerError::Bind {
+                what: "HTTP listener",
+                addr: options.http,
+                source,
+            })?;
         let tcp_addr = tcp
             .local_addr()
             .map_err(|e| ServerError::Runtime(e.to_string()))?;
@@ -536,7 +568,6 @@ impl Server {
                 scene: options.config_label.clone(),
             }),
             latest: Mutex::new(None),
-            last_plan: Mutex::new(None),
             calibration: Mutex::new((curve.id.clone(), curve.sha256.clone())),
             presenter: presenter.clone(),
             scene: Mutex::new(SceneState {
@@ -551,6 +582,8 @@ impl Server {
             next_conn: std::sync::atomic::AtomicU64::new(1),
             shutdown: stop_rx.clone(),
             access: options.access.clone(),
+            views: views::Views::start().map_err(|e| ServerError::Runtime(e.to_string()))?,
+            last_frame: Mutex::new(None),
             horizon_warmup: Mutex::new(None),
         });
         shared
@@ -563,7 +596,27 @@ impl Server {
             .map_err(|e| ServerError::Runtime(e.to_string()))?;
 
         runtime.spawn(connection::accept(tcp, shared.clone()));
-        runtime.spawn(http::serve(http_listener, shared.clone()));
+        let http_thread = {
+            let shared = shared.clone();
+            std::thread::Builder::new()
+                .name("optistim-http".into())
+                .spawn(move || {
+                    views::background_priority();
+                    let rt = tokio::runtime::Builder::new_current_thread()
+                        .enable_all()
+                        .build();
+                    match rt {
+                        Ok(rt) => rt.block_on(async move {
+                            match tokio::net::TcpListener::from_std(http_listener) {
+                                Ok(l) => http::serve(l, shared).await,
+                                Err(e) => tracing::error!("HTTP listener: {e}"),
+                            }
+                        }),
+                        Err(e) => tracing::error!("HTTP runtime: {e}"),
+                    }
+                })
+                .map_err(|e| ServerError::Runtime(e.to_string()))?
+        };
         if let Some((path, baud)) = &options.serial {
             serial::spawn(path, *baud, shared.clone(), runtime.handle().clone()).map_err(
                 |message| ServerError::Serial {
@@ -588,6 +641,7 @@ impl Server {
             stop,
             runtime: Some(runtime),
             frame_thread: Some(frame_thread),
+            http_thread: Some(http_thread),
         })
     }
 
@@ -620,6 +674,16 @@ impl Server {
         if let Some(rt) = self.runtime.take() {
             rt.block_on(async { tokio::time::sleep(std::time::Duration::from_millis(100)).await });
             rt.shutdown_timeout(std::time::Duration::from_secs(2));
+        }
+        // HTTP stops on the same signal once its requests are answered (2 s at most).
+        if let Some(t) = self.http_thread.take() {
+            let deadline = Instant::now() + std::time::Duration::from_secs(2);
+            while !t.is_finished() && Instant::now() < deadline {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+            if t.is_finished() {
+                let _ = t.join();
+            }
         }
         let flushed = self
             .shared

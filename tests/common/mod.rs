@@ -142,14 +142,8 @@ pub fn start_daemon(
     serial: Option<String>,
     record: Option<std::path::PathBuf>,
 ) -> optistim::server::Server {
-    optistim::server::Server::start(serve_options(
-        config_text,
-        presenter,
-        mode,
-        serial,
-        record,
-    ))
-    .unwrap_or_else(|e| panic!("{e}"))
+    optistim::server::Server::start(serve_options(config_text, presenter, mode, serial, record))
+        .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// What [`start_daemon`] starts, for tests that change something first.

@@ -432,6 +432,9 @@ struct ServeArgs {
     /// steers the bench).
     #[arg(long)]
     insecure: bool,
+    /// Also serve SurRender clients here (port 5151 by convention; docs/protocol.md).
+    #[arg(long)]
+    surrender: Option<std::net::SocketAddr>,
     /// A folder that scenes named over the network, and the files they name, must lie in
     /// (repeatable; default: the folder of --config).
     #[arg(long)]
@@ -460,6 +463,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         token_file,
         insecure,
         scene_dir,
+        surrender,
     } = args;
     let token = token_file
         .map(|f| Access::read_token_file(&f))
@@ -507,6 +511,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         mode: parse_mode(&mode)?,
         record,
         access,
+        surrender,
     })?;
     // The addresses as bound (port 0 picks a free one), for people and scripts.
     println!(
@@ -514,6 +519,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         serde_json::json!({
             "listening": daemon.tcp_addr.to_string(),
             "http": format!("http://{}", daemon.http_addr),
+            "surrender": daemon.surrender_addr.map(|a| a.to_string()),
             "presenter": daemon.presenter(),
             "config": label,
         })

@@ -35,6 +35,14 @@ pub enum AccessError {
         what: &'static str,
         addr: SocketAddr,
     },
+    #[error(
+        "{what} {addr} is not a loopback address and its protocol carries no access token: \
+         bind it to loopback (and reach it through a tunnel), or give --insecure"
+    )]
+    Tokenless {
+        what: &'static str,
+        addr: SocketAddr,
+    },
 }
 
 /// The daemon's access rules (see the module's documentation).
@@ -125,6 +133,19 @@ impl Access {
             return Ok(());
         }
         Err(AccessError::OpenWithoutToken { what, addr })
+    }
+
+    /// Refuses a non-loopback listener of a protocol that carries no token (the SurRender
+    /// endpoint) unless insecure: a token cannot protect it.
+    pub fn check_bind_tokenless(
+        &self,
+        what: &'static str,
+        addr: SocketAddr,
+    ) -> Result<(), AccessError> {
+        if addr.ip().is_loopback() || self.insecure {
+            return self.check_bind(what, addr);
+        }
+        Err(AccessError::Tokenless { what, addr })
     }
 
     pub fn requires_token(&self) -> bool {

@@ -15,6 +15,7 @@ pub mod http;
 pub mod protocol;
 pub mod record;
 pub mod serial;
+pub mod surrender;
 pub mod views;
 
 use crate::config::Config;
@@ -81,6 +82,8 @@ pub struct ServeOptions {
     pub record: Option<PathBuf>,
     /// The access token, the scene folders, `--insecure` ([`access`]).
     pub access: access::Access,
+    /// The SurRender-compatible endpoint's address ([`surrender`]), when served.
+    pub surrender: Option<SocketAddr>,
 }
 
 /// Settings that may change while the daemon runs (`GET/PUT /config`, the `config` message).
@@ -483,6 +486,9 @@ pub struct Server {
     runtime: Option<tokio::runtime::Runtime>,
     frame_thread: Option<std::thread::JoinHandle<()>>,
     http_thread: Option<std::thread::JoinHandle<()>>,
+    /// The SurRender endpoint as bound.
+    pub surrender_addr: Option<SocketAddr>,
+    surrender_thread: Option<std::thread::JoinHandle<()>>,
 }
 
 /// What happened at shutdown.
@@ -514,6 +520,26 @@ impl Server {
         };
         options.access.check_bind("pose listener", options.listen)?;
         options.access.check_bind("HTTP listener", options.http)?;
+        if let Some(a) = options.surrender {
+            options
+                .access
+                .check_bind_tokenless("SurRender listener", a)?;
+        }
+        let surrender_listener = match options.surrender {
+            Some(addr) => {
+                Some(
+                    std::net::TcpListener::bind(addr).map_err(|source| ServerError::Bind {
+                        what: "SurRender listener",
+                        addr,
+                        source,
+                    })?,
+                )
+            }
+            None => None,
+        };
+        let surrender_addr = surrender_listener
+            .as_ref()
+            .and_then(|l| l.local_addr().ok());
         let tcp = bind("pose listener", options.listen)?;
         // HTTP runs on its own runtime, on a background thread: watching never takes the
         // frames' CPU (tests/watching.rs).
@@ -596,6 +622,13 @@ impl Server {
             .map_err(|e| ServerError::Runtime(e.to_string()))?;
 
         runtime.spawn(connection::accept(tcp, shared.clone()));
+        let surrender_thread = match surrender_listener {
+            Some(l) => Some(
+                surrender::spawn(l, shared.clone())
+                    .map_err(|e| ServerError::Runtime(e.to_string()))?,
+            ),
+            None => None,
+        };
         let http_thread = {
             let shared = shared.clone();
             std::thread::Builder::new()
@@ -642,6 +675,8 @@ impl Server {
             runtime: Some(runtime),
             frame_thread: Some(frame_thread),
             http_thread: Some(http_thread),
+            surrender_addr,
+            surrender_thread,
         })
     }
 
@@ -674,6 +709,9 @@ impl Server {
         if let Some(rt) = self.runtime.take() {
             rt.block_on(async { tokio::time::sleep(std::time::Duration::from_millis(100)).await });
             rt.shutdown_timeout(std::time::Duration::from_secs(2));
+        }
+        if let Some(t) = self.surrender_thread.take() {
+            let _ = t.join();
         }
         // HTTP stops on the same signal once its requests are answered (2 s at most).
         if let Some(t) = self.http_thread.take() {

@@ -168,6 +168,7 @@ pub fn serve_options(
         // Tests name scenes they write under the temporary folder.
         access: optistim::server::access::Access::new(None, &[std::env::temp_dir()], false)
             .unwrap(),
+        surrender: None,
     }
 }
 

@@ -125,7 +125,7 @@ enum Command {
     /// The daemon: poses over TCP (binary frames or JSON lines) and serial in, calibrated
     /// frames out on the stimulator's screen (fullscreen when a display exists, off-screen
     /// otherwise), HTTP control and monitoring. Stops cleanly on SIGINT/SIGTERM.
-    Serve(ServeArgs),
+    Serve(Box<ServeArgs>),
     /// Stream a pose file (trajectory CSV/JSONL or a recording) to a daemon and report the acks.
     Replay {
         file: PathBuf,
@@ -327,7 +327,7 @@ fn run() -> anyhow::Result<()> {
             })?;
             println!("{}", serde_json::to_string(&report)?);
         }
-        Command::Serve(args) => serve(args)?,
+        Command::Serve(args) => serve(*args)?,
         Command::Replay {
             file,
             rate,
@@ -435,6 +435,13 @@ struct ServeArgs {
     /// Also serve SurRender clients here (port 5151 by convention; docs/protocol.md).
     #[arg(long)]
     surrender: Option<std::net::SocketAddr>,
+    /// Also serve CORTO's decoupled in-the-loop client: its pose port (UDP, 51001 in its
+    /// script) ...
+    #[arg(long, requires = "corto_image")]
+    corto_pose: Option<std::net::SocketAddr>,
+    /// ... and its image port (TCP, 30001); the scene needs a [corto] section.
+    #[arg(long, requires = "corto_pose")]
+    corto_image: Option<std::net::SocketAddr>,
     /// A folder that scenes named over the network, and the files they name, must lie in
     /// (repeatable; default: the folder of --config).
     #[arg(long)]
@@ -464,6 +471,8 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         insecure,
         scene_dir,
         surrender,
+        corto_pose,
+        corto_image,
     } = args;
     let token = token_file
         .map(|f| Access::read_token_file(&f))
@@ -512,6 +521,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         record,
         access,
         surrender,
+        corto: corto_pose.zip(corto_image),
     })?;
     // The addresses as bound (port 0 picks a free one), for people and scripts.
     println!(
@@ -520,6 +530,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
             "listening": daemon.tcp_addr.to_string(),
             "http": format!("http://{}", daemon.http_addr),
             "surrender": daemon.surrender_addr.map(|a| a.to_string()),
+            "corto": daemon.corto_addrs.map(|(p, i)| [p.to_string(), i.to_string()]),
             "presenter": daemon.presenter(),
             "config": label,
         })

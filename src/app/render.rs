@@ -62,6 +62,18 @@ pub enum Method {
     Reference(ReferenceSettings),
 }
 
+/// The settings `optistim render` renders `pose` of `config` with: the scene's, or what the
+/// fidelity planner chooses for the pose; depth on. (The compatible endpoints render with
+/// these too, so that their images equal `optistim render`'s.)
+pub fn frame_settings(config: &Config, pose: &crate::scene::Pose) -> crate::render::Settings {
+    let mut settings = config.planner().map_or_else(
+        || config.settings.clone(),
+        |p| p.plan(&config.scene, pose).settings,
+    );
+    settings.depth = true;
+    settings
+}
+
 /// Renders the scene of `config` and writes the outputs into `out`.
 pub fn run(
     config: &Config,
@@ -83,6 +95,7 @@ pub fn run(
                 .as_ref()
                 .map_or_else(|| config.settings.clone(), |p| p.settings.clone());
             settings.depth = true;
+            debug_assert_eq!(settings, frame_settings(config, &config.pose));
             let mut renderer = Renderer::new(settings.threads)?;
             (
                 renderer.render(&config.scene, &config.pose, &settings)?,

@@ -66,6 +66,8 @@ pub struct Config {
     /// `[render] fidelity = "budget"`: the budget and the error model the planner meets it
     /// with (`None`: the settings above for every frame).
     pub fidelity: Option<BudgetFidelity>,
+    /// The `[corto]` section: metres per Blender unit of CORTO's poses.
+    pub corto_metres_per_unit: Option<f64>,
 }
 
 /// Error-budgeted fidelity ([`crate::fidelity::budget`]).
@@ -234,6 +236,10 @@ impl Validator<'_> {
             None => None,
         };
         let fidelity = self.fidelity(&raw.render)?;
+        let corto_metres_per_unit = match &raw.corto {
+            Some(c) => Some(self.positive("corto.metres_per_unit", c.metres_per_unit)?),
+            None => None,
+        };
         Ok(Config {
             scene: Scene { sun, body, camera },
             pose,
@@ -241,6 +247,7 @@ impl Validator<'_> {
             power_band_m,
             stimulator,
             fidelity,
+            corto_metres_per_unit,
         })
     }
 

@@ -13,6 +13,15 @@ pub struct RawScene {
     #[serde(default)]
     pub render: RawRender,
     pub stimulator: Option<RawStimulator>,
+    pub corto: Option<RawCorto>,
+}
+
+/// `[corto]`: how CORTO's poses (Blender units, Blender's camera) map onto the scene.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawCorto {
+    /// Metres per Blender unit.
+    pub metres_per_unit: f64,
 }
 
 #[derive(Debug, Deserialize)]

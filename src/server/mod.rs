@@ -10,6 +10,7 @@
 
 pub mod access;
 pub mod connection;
+pub mod corto;
 pub mod frames;
 pub mod http;
 pub mod protocol;
@@ -84,6 +85,8 @@ pub struct ServeOptions {
     pub access: access::Access,
     /// The SurRender-compatible endpoint's address ([`surrender`]), when served.
     pub surrender: Option<SocketAddr>,
+    /// The CORTO-compatible endpoint's pose (UDP) and image (TCP) addresses ([`corto`]).
+    pub corto: Option<(SocketAddr, SocketAddr)>,
 }
 
 /// Settings that may change while the daemon runs (`GET/PUT /config`, the `config` message).
@@ -489,6 +492,9 @@ pub struct Server {
     /// The SurRender endpoint as bound.
     pub surrender_addr: Option<SocketAddr>,
     surrender_thread: Option<std::thread::JoinHandle<()>>,
+    /// The CORTO endpoint's pose and image addresses as bound.
+    pub corto_addrs: Option<(SocketAddr, SocketAddr)>,
+    corto_threads: Vec<std::thread::JoinHandle<()>>,
 }
 
 /// What happened at shutdown.
@@ -540,6 +546,33 @@ impl Server {
         let surrender_addr = surrender_listener
             .as_ref()
             .and_then(|l| l.local_addr().ok());
+        let corto_sockets = match options.corto {
+            Some((pose, image)) => {
+                options
+                    .access
+                    .check_bind_tokenless("CORTO pose port", pose)?;
+                options
+                    .access
+                    .check_bind_tokenless("CORTO image port", image)?;
+                if options.config.corto_metres_per_unit.is_none() {
+                    return Err(ServerError::Runtime(
+                        "--corto-pose: the scene has no [corto] section (metres_per_unit: \
+                         metres per Blender unit of the client's poses)"
+                            .into(),
+                    ));
+                }
+                let bind_err = |what, addr| move |source| ServerError::Bind { what, addr, source };
+                Some((
+                    std::net::UdpSocket::bind(pose).map_err(bind_err("CORTO pose port", pose))?,
+                    std::net::TcpListener::bind(image)
+                        .map_err(bind_err("CORTO image port", image))?,
+                ))
+            }
+            None => None,
+        };
+        let corto_addrs = corto_sockets
+            .as_ref()
+            .and_then(|(u, t)| Some((u.local_addr().ok()?, t.local_addr().ok()?)));
         let tcp = bind("pose listener", options.listen)?;
         // HTTP runs on its own runtime, on a background thread: watching never takes the
         // frames' CPU (tests/watching.rs).
@@ -629,6 +662,11 @@ impl Server {
             ),
             None => None,
         };
+        let corto_threads = match corto_sockets {
+            Some((u, t)) => corto::spawn(u, t, shared.clone())
+                .map_err(|e| ServerError::Runtime(e.to_string()))?,
+            None => Vec::new(),
+        };
         let http_thread = {
             let shared = shared.clone();
             std::thread::Builder::new()
@@ -677,6 +715,8 @@ impl Server {
             http_thread: Some(http_thread),
             surrender_addr,
             surrender_thread,
+            corto_addrs,
+            corto_threads,
         })
     }
 
@@ -711,6 +751,9 @@ impl Server {
             rt.shutdown_timeout(std::time::Duration::from_secs(2));
         }
         if let Some(t) = self.surrender_thread.take() {
+            let _ = t.join();
+        }
+        for t in self.corto_threads.drain(..) {
             let _ = t.join();
         }
         // HTTP stops on the same signal once its requests are answered (2 s at most).

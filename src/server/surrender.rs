@@ -594,11 +594,7 @@ impl Session {
 
     fn render(&mut self) -> Result<(), String> {
         let c = self.frame_config()?;
-        let mut settings = c.settings.clone();
-        if let Some(p) = c.planner() {
-            settings = p.plan(&c.scene, &c.pose).settings;
-        }
-        settings.depth = true;
+        let settings = crate::app::render::frame_settings(&c, &c.pose);
         let frame = self
             .renderer
             .render(&c.scene, &c.pose, &settings)

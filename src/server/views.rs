@@ -222,17 +222,7 @@ fn make(views: &Views, job: &Job) -> Answer {
     if !job.view.is_camera() {
         let max_code = (1u32 << job.screen_bits) - 1;
         return match job.view {
-            View::ScreenCodes => {
-                let png = crate::io::encode_png_gray(w, h, &job.screen.dn, 16)
-                    .map_err(|e| e.to_string())?
-                    .into();
-                Ok(Arc::new(Image {
-                    seq,
-                    frame_id,
-                    png,
-                    scale: None,
-                }))
-            }
+            View::ScreenCodes => codes((seq, frame_id), w, h, &job.screen.dn, 16),
             _ => viewing((seq, frame_id), w, h, &job.screen.dn, max_code),
         };
     }
@@ -243,17 +233,7 @@ fn make(views: &Views, job: &Job) -> Answer {
     let dn = capture(views, job, camera)?;
     let d = camera.detector();
     match job.view {
-        View::CameraDn => {
-            let png = crate::io::encode_png_gray(cw, ch, &dn, d.saved_bits)
-                .map_err(|e| e.to_string())?
-                .into();
-            Ok(Arc::new(Image {
-                seq,
-                frame_id,
-                png,
-                scale: None,
-            }))
-        }
+        View::CameraDn => codes((seq, frame_id), cw, ch, &dn, d.saved_bits),
         _ => {
             // Saturation: the top of the saved range, or the full well if it comes first.
             let full_well_dn =
@@ -288,6 +268,19 @@ fn capture(views: &Views, job: &Job, camera: &SimulatedCamera) -> Result<Arc<Vec
         inner.camera = Some((seq, dn.clone()));
     }
     Ok(dn)
+}
+
+/// DN as they are, in a grey PNG of `bits` (16-bit above 8).
+fn codes((seq, frame_id): (u64, u64), w: usize, h: usize, dn: &[u16], bits: u32) -> Answer {
+    let png = crate::io::encode_png_gray(w, h, dn, bits)
+        .map_err(|e| e.to_string())?
+        .into();
+    Ok(Arc::new(Image {
+        seq,
+        frame_id,
+        png,
+        scale: None,
+    }))
 }
 
 /// DN scaled for viewing: grey linear in DN with the highest DN below `clip_dn` white, and

@@ -169,6 +169,7 @@ pub fn serve_options(
         access: optistim::server::access::Access::new(None, &[std::env::temp_dir()], false)
             .unwrap(),
         surrender: None,
+        corto: None,
     }
 }
 

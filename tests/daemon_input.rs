@@ -572,3 +572,49 @@ fn the_dashboard_renders_and_updates_in_headless_chromium() {
         "the Moon is not visible on the camera's image: {right} lit pixels"
     );
 }
+
+/// The recording's disk full (`/dev/full`): the daemon serves on, every ack says how many
+/// messages the recording failed to write, and `/status` says why.
+#[test]
+fn a_full_recording_disk_is_reported_and_the_daemon_serves_on() {
+    let d = start_daemon(
+        &small_daemon_config(),
+        PresenterChoice::Cpu,
+        Mode::Lockstep,
+        None,
+        Some("/dev/full".into()),
+    );
+    let mut c = Client::connect(d.tcp_addr);
+    let mut failed = Vec::new();
+    for i in 0..5 {
+        c.send(&Message::Pose(nrho_pose(i)));
+        loop {
+            match c.recv(WAIT) {
+                Some(Message::Ack(a)) if a.frame_id == i => {
+                    assert_eq!(a.status, AckStatus::Presented);
+                    failed.push(a.recording_failed.expect("the ack reports the recording"));
+                    break;
+                }
+                Some(_) => continue,
+                None => panic!("pose {i} was not acked"),
+            }
+        }
+    }
+    assert!(failed.windows(2).all(|w| w[1] > w[0]), "{failed:?}");
+    let (code, body) = http(d.http_addr, "GET", "/status", b"");
+    assert_eq!(code, 200);
+    let s: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let r = &s["recording"];
+    assert_eq!(r["path"], "/dev/full");
+    assert!(r["failed"].as_u64().unwrap() >= 5, "{r}");
+    assert!(
+        r["last_error"].as_str().unwrap().contains("No space left"),
+        "{r}"
+    );
+    let report = d.shutdown();
+    assert_eq!(report.frames_presented, 5);
+    assert!(
+        !report.recording_flushed,
+        "a full disk is not a flushed recording"
+    );
+}

@@ -471,6 +471,12 @@ impl FrameThread {
             clipped_above_max: clips.above_max,
             calibration_id,
             fidelity: h.made.plan.as_ref().map(AckFidelity::of),
+            recording_failed: self
+                .shared
+                .recorder
+                .as_ref()
+                .map(|r| r.health().failed)
+                .filter(|&n| n > 0),
         }
     }
 

@@ -111,6 +111,7 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         "latest_frame_id": latest,
         "dem_horizon": horizon,
         "last_frame": last_frame,
+        "recording": s.recorder.as_ref().map(|r| r.health()),
         "views": {"images_made": images_made, "camera_captures": captures_made},
     }))
     .into_response()

@@ -157,7 +157,15 @@ pub struct AckMsg {
     /// predicts (absent otherwise; in the binary payload, after the calibration id).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<AckFidelity>,
+    /// With `--record`: the received messages the recording has failed to write so far
+    /// (disk full, ...), absent while it has written every one (in the binary payload, a u64
+    /// after the fidelity tail).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording_failed: Option<u64>,
 }
+
+/// Bytes of the binary ack's fidelity tail.
+const FIDELITY_TAIL: usize = 35;
 
 /// The fidelity planner's choice for one frame ([`crate::fidelity::budget::Plan`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -207,6 +215,7 @@ impl AckMsg {
             clipped_above_max: 0,
             calibration_id: String::new(),
             fidelity: None,
+            recording_failed: None,
         }
     }
 }
@@ -359,6 +368,9 @@ impl Message {
                     w.f64(f.predicted_total);
                     w.u8(u8::from(f.meets_budget));
                 }
+                if let Some(n) = a.recording_failed {
+                    w.u64(n);
+                }
             }
             Message::CameraFrame {
                 frame_id,
@@ -471,7 +483,9 @@ impl Message {
                     clipped_below_dark: r.u64()?,
                     clipped_above_max: r.u64()?,
                     calibration_id: r.str()?,
-                    fidelity: if r.i < payload.len() {
+                    // Optional tails, told apart by their lengths: fidelity (35 bytes),
+                    // then the recording's failures (8).
+                    fidelity: if payload.len() - r.i >= FIDELITY_TAIL {
                         Some(AckFidelity {
                             points_per_pixel: r.f64()?,
                             boundary_nodes: r.u8()?,
@@ -481,6 +495,11 @@ impl Message {
                             predicted_total: r.f64()?,
                             meets_budget: r.u8()? != 0,
                         })
+                    } else {
+                        None
+                    },
+                    recording_failed: if r.i < payload.len() {
+                        Some(r.u64()?)
                     } else {
                         None
                     },
@@ -810,6 +829,7 @@ mod tests {
                 clipped_above_max: 0,
                 calibration_id: "example".into(),
                 fidelity: None,
+                recording_failed: Some(3),
             }),
             Message::Ack(AckMsg {
                 frame_id: 8,
@@ -832,6 +852,7 @@ mod tests {
                     predicted_total: 3e-6,
                     meets_budget: true,
                 }),
+                recording_failed: None,
             }),
             Message::CameraFrame {
                 frame_id: 7,

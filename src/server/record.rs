@@ -15,7 +15,23 @@ use std::path::Path;
 use std::sync::Mutex;
 
 pub struct Recorder {
+    path: String,
     file: Mutex<BufWriter<std::fs::File>>,
+    written: std::sync::atomic::AtomicU64,
+    failed: std::sync::atomic::AtomicU64,
+    last_error: Mutex<Option<String>>,
+}
+
+/// How the recording fares (`/status`, and the acks' `recording_failed`).
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordingHealth {
+    pub path: String,
+    /// Entries handed to the OS.
+    pub written: u64,
+    /// Entries that could not be written (the daemon serves on; a failed entry stays in the
+    /// writer's buffer, bounded, and goes out if the disk frees up).
+    pub failed: u64,
+    pub last_error: Option<String>,
 }
 
 #[derive(Serialize)]
@@ -32,7 +48,11 @@ impl Recorder {
     /// Creates (or truncates) the recording file.
     pub fn create(path: &Path) -> std::io::Result<Recorder> {
         Ok(Recorder {
+            path: path.display().to_string(),
             file: Mutex::new(BufWriter::new(std::fs::File::create(path)?)),
+            written: Default::default(),
+            failed: Default::default(),
+            last_error: Mutex::new(None),
         })
     }
 
@@ -55,12 +75,38 @@ impl Recorder {
     }
 
     fn write(&self, e: &Entry) {
+        use std::sync::atomic::Ordering::Relaxed;
         let mut f = self.file.lock().unwrap_or_else(|e| e.into_inner());
-        let ok = serde_json::to_writer(&mut *f, e).is_ok()
-            && f.write_all(b"\n").is_ok()
-            && f.flush().is_ok();
-        if !ok {
-            tracing::error!("the recording could not be written (disk full?)");
+        let r = serde_json::to_writer(&mut *f, e)
+            .map_err(std::io::Error::from)
+            .and_then(|()| f.write_all(b"\n"))
+            .and_then(|()| f.flush());
+        match r {
+            Ok(()) => {
+                self.written.fetch_add(1, Relaxed);
+            }
+            Err(err) => {
+                let n = self.failed.fetch_add(1, Relaxed) + 1;
+                // Logged at the first failure and then every 1000th, not per message.
+                if n == 1 || n % 1000 == 0 {
+                    tracing::error!(path = %self.path, failed = n, "recording: {err}");
+                }
+                *self.last_error.lock().unwrap_or_else(|e| e.into_inner()) = Some(err.to_string());
+            }
+        }
+    }
+
+    pub fn health(&self) -> RecordingHealth {
+        use std::sync::atomic::Ordering::Relaxed;
+        RecordingHealth {
+            path: self.path.clone(),
+            written: self.written.load(Relaxed),
+            failed: self.failed.load(Relaxed),
+            last_error: self
+                .last_error
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .clone(),
         }
     }
 

@@ -237,3 +237,71 @@ fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
     );
     assert_eq!(again[0], nrho_pose(0));
 }
+
+/// The serial line vanishes mid-stream (its pty closes) and comes back (a new pty at the same
+/// path, a symbolic link as a udev rule would make): the daemon reopens it and serves the
+/// poses that come over the new line.
+#[test]
+fn a_serial_line_that_vanishes_and_comes_back_is_served_again() {
+    use optistim::server::protocol::{Decoded, Decoder, Message};
+    use serialport::SerialPort;
+    use std::io::{Read, Write};
+    let dir = TempDir::new("serial-vanish");
+    let link = dir.join("ttyBENCH");
+    let pair = || {
+        let (master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+        let _ = std::fs::remove_file(&link);
+        std::os::unix::fs::symlink(slave.name().unwrap(), &link).unwrap();
+        (master, slave)
+    };
+    // Sends pose `id` (again every 300 ms) until its ack comes back over `master`.
+    let acked = |master: &mut serialport::TTYPort, id: u64| {
+        master
+            .set_timeout(std::time::Duration::from_millis(300))
+            .unwrap();
+        let mut d = Decoder::new(u32::MAX);
+        let t0 = std::time::Instant::now();
+        let mut buf = [0u8; 4096];
+        while t0.elapsed() < std::time::Duration::from_secs(20) {
+            master
+                .write_all(&Message::Pose(nrho_pose(id)).encode())
+                .unwrap();
+            if let Ok(n) = master.read(&mut buf) {
+                d.push(&buf[..n]);
+            }
+            while let Decoded::Message(m) = d.next_message() {
+                if matches!(m, Message::Ack(ref a) if a.frame_id == id && a.status == AckStatus::Presented)
+                {
+                    return true;
+                }
+            }
+        }
+        false
+    };
+    let (mut master, slave) = pair();
+    let daemon = start_daemon(
+        &small_daemon_config(),
+        PresenterChoice::Cpu,
+        Mode::Free,
+        Some(link.to_str().unwrap().to_string()),
+        None,
+    );
+    assert!(acked(&mut master, 1), "the first line served no pose");
+    // The line vanishes: both ends close, the pty is gone.
+    drop(master);
+    drop(slave);
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    // It comes back at the same path.
+    let (mut master, _slave) = pair();
+    assert!(
+        acked(&mut master, 2),
+        "the line came back but was not served"
+    );
+    let status: serde_json::Value =
+        serde_json::from_slice(&http(daemon.http_addr, "GET", "/status", b"").1).unwrap();
+    assert!(
+        status["frames_presented"].as_u64().unwrap() >= 2,
+        "{status}"
+    );
+    daemon.shutdown();
+}

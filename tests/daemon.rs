@@ -305,3 +305,72 @@ fn a_serial_line_that_vanishes_and_comes_back_is_served_again() {
     );
     daemon.shutdown();
 }
+
+/// SIGTERM while frames are in flight (20 poses queued in lockstep, the signal right after the
+/// first ack): every pose is answered, presented or `shutting_down`, none twice; the
+/// recording has all 20; the daemon exits cleanly and its report adds up.
+#[test]
+fn sigterm_with_frames_in_flight_answers_every_pose() {
+    use optistim::server::protocol::ErrorCode;
+    use std::io::{BufRead, BufReader};
+    let dir = TempDir::new("sigterm-inflight");
+    let scene = dir.join("daemon.toml");
+    std::fs::write(&scene, optistim::server::DEFAULT_CONFIG).unwrap();
+    let record = dir.join("rec.jsonl");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
+        .args(["serve", "--config", scene.to_str().unwrap()])
+        .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+        .args(["--present", "cpu", "--mode", "lockstep"])
+        .args(["--record", record.to_str().unwrap()])
+        .env_remove("DISPLAY")
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    let addr: std::net::SocketAddr = first["listening"].as_str().unwrap().parse().unwrap();
+    let mut c = Client::connect(addr);
+    for p in poses(20) {
+        c.send(&Message::Pose(p));
+    }
+    let (mut presented, mut refused) = (Vec::new(), Vec::new());
+    let mut signalled = false;
+    while let Some(m) = c.recv(Duration::from_secs(30)) {
+        match m {
+            Message::Ack(a) if a.status == AckStatus::Presented => presented.push(a.frame_id),
+            Message::Error {
+                code: ErrorCode::ShuttingDown,
+                frame_id: Some(f),
+                ..
+            } => refused.push(f),
+            other => panic!("unexpected {other:?}"),
+        }
+        if !signalled {
+            // A frame is rendering now, the rest wait.
+            let ok = std::process::Command::new("kill")
+                .args(["-TERM", &child.id().to_string()])
+                .status()
+                .unwrap();
+            assert!(ok.success());
+            signalled = true;
+        }
+    }
+    let exit = child.wait().unwrap();
+    assert!(exit.success(), "{exit:?}");
+    let report: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    let mut all: Vec<u64> = presented.iter().chain(&refused).copied().collect();
+    all.sort_unstable();
+    assert_eq!(all, (0..20).collect::<Vec<_>>(), "every pose answered once");
+    assert!(!refused.is_empty(), "some poses were still waiting");
+    assert_eq!(
+        report["frames_presented"].as_u64(),
+        Some(presented.len() as u64)
+    );
+    assert_eq!(
+        report["poses_not_rendered"].as_u64(),
+        Some(refused.len() as u64)
+    );
+    assert_eq!(report["recording_flushed"].as_bool(), Some(true));
+    let text = std::fs::read_to_string(&record).unwrap();
+    assert_eq!(text.lines().filter(|l| l.contains("\"pose\"")).count(), 20);
+}

@@ -3,6 +3,7 @@
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use optistim::{app, config, render::Settings};
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -537,7 +538,9 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     );
     wait_for_signal()?;
     let report = daemon.shutdown();
-    println!("{}", serde_json::to_string(&report)?);
+    // Whoever started the daemon may have stopped reading its stdout: a closed pipe is not
+    // a reason to fail a clean stop.
+    let _ = writeln!(std::io::stdout(), "{}", serde_json::to_string(&report)?);
     Ok(())
 }
 

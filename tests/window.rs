@@ -246,3 +246,123 @@ fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
     }
     panic!("the screen never showed the expected DN: {last}");
 }
+
+/// The daemon in window mode under Xvfb, streamed 50 NRHO poses in lockstep (automated, as a
+/// bench's GNC simulator would): every pose presented in order, and the screen then shows the
+/// latest frame's codes (`/frame/latest.png`) within 1 LSB.
+#[test]
+fn the_daemon_in_window_mode_streams_poses_in_lockstep_under_xvfb() {
+    let (_xvfb, display) = start_xvfb();
+    let xdg = std::env::temp_dir().join(format!("optistim-xdg-d-{}", std::process::id()));
+    std::fs::create_dir_all(&xdg).unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&xdg, std::fs::Permissions::from_mode(0o700)).unwrap();
+    }
+    let _wm = Reaped(
+        Command::new(tool("openbox"))
+            .env("DISPLAY", &display)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start openbox"),
+    );
+    let dir = std::env::temp_dir().join(format!("optistim-window-d-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = optistim::server::DEFAULT_CONFIG
+        .replace("[1920, 1200]", "[1280, 1024]")
+        .replace("screen_bit_depth = 10", "screen_bit_depth = 8")
+        .replace("dither = \"ordered\"", "dither = \"none\"");
+    let scene_path = dir.join("daemon.toml");
+    std::fs::write(&scene_path, &scene).unwrap();
+    let cfg = config::load(&scene_path).unwrap();
+    assert_eq!(cfg.stimulator.as_ref().unwrap().screen_px, SCREEN);
+
+    let mut serve = Reaped(
+        Command::new(env!("CARGO_BIN_EXE_optistim"))
+            .args(["serve", "--config", scene_path.to_str().unwrap()])
+            .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+            .args(["--present", "window", "--mode", "lockstep"])
+            .env("DISPLAY", &display)
+            .env_remove("WAYLAND_DISPLAY")
+            .env("XDG_RUNTIME_DIR", &xdg)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start optistim serve"),
+    );
+    let mut lines = BufReader::new(serve.0.stdout.take().unwrap()).lines();
+    let first: serde_json::Value =
+        serde_json::from_str(&lines.next().unwrap().unwrap()).expect("the daemon's address line");
+    assert!(
+        first["presenter"].as_str().unwrap().contains("window"),
+        "{first}"
+    );
+    let addr: std::net::SocketAddr = first["listening"].as_str().unwrap().parse().unwrap();
+    let http: std::net::SocketAddr = first["http"]
+        .as_str()
+        .unwrap()
+        .trim_start_matches("http://")
+        .parse()
+        .unwrap();
+
+    let all =
+        optistim::app::replay::read_poses(Path::new("../shared/trajectories/nrho_2orbits.csv"))
+            .unwrap();
+    let poses: Vec<_> = all.into_iter().step_by(14).take(50).collect();
+    let s = std::net::TcpStream::connect(addr).unwrap();
+    let r = optistim::app::replay::stream(
+        Box::new(s.try_clone().unwrap()),
+        Box::new(s),
+        &poses,
+        20.0,
+        optistim::server::frames::Mode::Lockstep,
+        "window daemon",
+        None,
+    )
+    .unwrap();
+    eprintln!("window daemon: {}", serde_json::to_string(&r).unwrap());
+    assert_eq!(
+        (r.acked, r.lost, r.errors, r.dropped),
+        (50, 0, 0, 0),
+        "{r:?}"
+    );
+    assert!(r.in_order);
+
+    // The screen shows the latest frame.
+    let (code, png) = common::http(http, "GET", "/frame/latest.png", b"");
+    assert_eq!(code, 200);
+    let mut reader = png::Decoder::new(std::io::Cursor::new(png))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    reader.next_frame(&mut buf).unwrap();
+    let want: Vec<u16> = buf
+        .chunks_exact(2)
+        .map(|c| u16::from_be_bytes([c[0], c[1]]))
+        .collect();
+    let t0 = Instant::now();
+    let mut last = String::new();
+    while t0.elapsed() < Duration::from_secs(20) {
+        let shot = Command::new(tool("xwd"))
+            .args(["-root", "-silent", "-display", &display])
+            .output()
+            .expect("run xwd");
+        let (w, h, red) = xwd_red(&shot.stdout);
+        assert_eq!([w, h], SCREEN);
+        let worse = red
+            .iter()
+            .zip(&want)
+            .filter(|&(&g, &e)| (i32::from(g) - i32::from(e)).abs() > 1)
+            .count();
+        last = format!("{worse} px off by more than 1 LSB");
+        if worse == 0 {
+            assert!(want.iter().any(|&v| v > 0), "the last frame is not black");
+            let _ = std::fs::remove_dir_all(&dir);
+            let _ = std::fs::remove_dir_all(&xdg);
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    panic!("the window does not show the latest frame: {last}");
+}

@@ -69,7 +69,9 @@ fn the_published_corto_client_gets_optistims_renders() {
         String::from_utf8_lossy(&run.stdout),
         String::from_utf8_lossy(&run.stderr)
     );
+    let presented = d.shared.stats.frames_presented.get();
     d.shutdown();
+    assert_eq!(presented, 3, "each pose went onto the stimulator's screen");
 
     for (i, p) in client_poses().iter().enumerate() {
         let got = std::fs::read(dir.join(&format!("output/decoupled_tutorial/{i:06}.png")))

@@ -108,6 +108,8 @@ fn the_published_surrender_client_drives_optistim_unchanged() {
         String::from_utf8_lossy(&run.stderr)
     );
 
+    // Every render went onto the stimulator's screen too (the client's camera is the scene's).
+    assert_eq!(d.shared.stats.frames_presented.get(), 50);
     let (shape, bytes, dtype) = npz(&out, "images");
     assert_eq!(dtype, "<f4");
     let (w, h) = (cam.width_px as usize, cam.height_px as usize);

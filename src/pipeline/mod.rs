@@ -34,6 +34,8 @@ pub struct FrameTimings {
 /// One pose, made.
 pub struct MadeFrame {
     pub frame_id: u64,
+    /// `(P/L)` per camera pixel [sr m^2], as rendered.
+    pub pl: Vec<f64>,
     /// The flight camera's signal [e-/s] (camera pixels, row-major).
     pub signal_e_per_s: Vec<f64>,
     pub stats: FrameStats,
@@ -117,6 +119,7 @@ impl FrameMaker {
         Ok(MadeFrame {
             frame_id: pose.frame_id,
             signal_e_per_s: signal,
+            pl: frame.pl,
             stats: frame.stats,
             stimulator,
             timings_ms: t,

@@ -280,18 +280,10 @@ impl Conn {
                     exposure_s,
                     received,
                     reply: self.out.clone(),
+                    products: None,
                 };
-                match self.shared.intake.push(job, self.shared.runtime().mode) {
-                    Ok(dropped) => {
-                        for d in dropped {
-                            self.shared.stats.poses_dropped.inc();
-                            d.reply.send(Message::Ack(protocol::AckMsg::dropped(
-                                d.pose.frame_id,
-                                self.shared.ns(d.received),
-                            )));
-                        }
-                    }
-                    Err(e) => self.error(e),
+                if let Err(e) = submit(&self.shared, job) {
+                    self.error(e);
                 }
             }
             Message::Config { json } => {
@@ -326,6 +318,19 @@ impl Conn {
             )),
         }
     }
+}
+
+/// Hands a pose to the frame thread in the daemon's mode; the poses it replaces (free-running)
+/// are acked `dropped`.
+pub fn submit(shared: &Shared, job: Job) -> Result<(), ProtocolError> {
+    for d in shared.intake.push(job, shared.runtime().mode)? {
+        shared.stats.poses_dropped.inc();
+        d.reply.send(Message::Ack(protocol::AckMsg::dropped(
+            d.pose.frame_id,
+            shared.ns(d.received),
+        )));
+    }
+    Ok(())
 }
 
 /// A pose message as the renderer's pose, and its exposure: every value finite, unit

@@ -14,8 +14,10 @@
 //!   bits, exactly `optistim render`'s `image.png` for that pose, the n-th pose's noise seeded
 //!   by n (from 0, per image connection).
 //!
-//! A datagram that is not a pose is counted and logged and gets no image (the protocol has no
-//! way to answer it). The threads block on their sockets (never the async runtime).
+//! Each pose goes through the frame thread like any other (and onto the stimulator's screen);
+//! its `(P/L)` comes back for the client's image. A datagram that is not a pose is counted and
+//! logged and gets no image (the protocol has no way to answer it). The threads block on
+//! their sockets (never the async runtime).
 
 use super::Shared;
 use crate::config::Config;
@@ -134,14 +136,13 @@ pub fn spawn(
 }
 
 fn pose_loop(udp: UdpSocket, conn: Arc<Mutex<Option<(TcpStream, u64)>>>, shared: Arc<Shared>) {
-    let mut renderer: Option<crate::render::Renderer> = None;
+    let mut link = super::CompatLink::new(shared.clone());
     let mut buf = [0u8; 2048];
     while !*shared.shutdown.borrow() {
         let (n, from) = match udp.recv_from(&mut buf) {
             Ok(x) => x,
             Err(_) => continue, // the timeout: look at shutdown
         };
-        shared.stats.poses_received.inc();
         let config = shared.scene().config;
         // The client connects to the image port before it sends a pose; the acceptor may
         // not have taken the connection yet: give it 2 s.
@@ -157,16 +158,10 @@ fn pose_loop(udp: UdpSocket, conn: Arc<Mutex<Option<(TcpStream, u64)>>>, shared:
             tracing::warn!(%from, "CORTO pose with no image client connected: not rendered");
             continue;
         };
-        let r = match renderer.as_mut() {
-            Some(r) => Ok(r),
-            None => crate::render::Renderer::new(config.settings.threads)
-                .map(|r| renderer.insert(r))
-                .map_err(|e| e.to_string()),
-        };
-        let png = r.and_then(|r| {
-            let p = decode(&buf[..n])?;
+        let png = decode(&buf[..n]).and_then(|p| {
             let pose = to_pose(&p, config.corto_metres_per_unit.unwrap_or(1.0), *count)?;
-            image_png(r, &config, &pose)
+            let pl = link.present(pose.clone(), None)?;
+            image_png(&config, &pose, &pl)
         });
         match png {
             Ok(png) => {
@@ -176,8 +171,6 @@ fn pose_loop(udp: UdpSocket, conn: Arc<Mutex<Option<(TcpStream, u64)>>>, shared:
                 if let Err(e) = stream.write_all(&msg) {
                     tracing::warn!("CORTO image client gone: {e}");
                     *slot = None;
-                } else {
-                    shared.stats.frames_presented.inc();
                 }
             }
             Err(e) => {
@@ -188,25 +181,17 @@ fn pose_loop(udp: UdpSocket, conn: Arc<Mutex<Option<(TcpStream, u64)>>>, shared:
     }
 }
 
-/// The camera's DN image of `pose` as `optistim render` makes `image.png`.
+/// The camera's DN image of a frame's `(P/L)` as `optistim render` makes `image.png`.
 pub fn image_png(
-    renderer: &mut crate::render::Renderer,
     config: &Config,
     pose: &crate::scene::Pose,
+    pl: &[f64],
 ) -> Result<Vec<u8>, String> {
-    let settings = crate::app::render::frame_settings(config, pose);
-    let frame = renderer
-        .render(&config.scene, pose, &settings)
-        .map_err(|e| e.to_string())?;
     let det = &config.scene.camera.detector;
-    let (_, dn) = det.image(
-        &frame.pl,
-        (frame.width, frame.height),
-        &config.scene.sun,
-        pose.frame_id,
-    );
-    crate::io::encode_png_gray(frame.width, frame.height, &dn, det.saved_bits)
-        .map_err(|e| e.to_string())
+    let i = &config.scene.camera.intrinsics;
+    let (w, h) = (i.width_px as usize, i.height_px as usize);
+    let (_, dn) = det.image(pl, (w, h), &config.scene.sun, pose.frame_id);
+    crate::io::encode_png_gray(w, h, &dn, det.saved_bits).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

@@ -41,6 +41,16 @@ pub struct Job {
     pub received: Instant,
     /// Where the ack goes: the connection's outbound queue.
     pub reply: Outbound,
+    /// For the compatible endpoints: the frame's products once presented (or why not). A
+    /// pose dropped before rendering drops the sender.
+    pub products: Option<std_mpsc::SyncSender<Result<Products, String>>>,
+}
+
+/// What a presented frame hands back to a compatible endpoint.
+pub struct Products {
+    pub frame_id: u64,
+    /// `(P/L)` per camera pixel [sr m^2].
+    pub pl: Vec<f64>,
 }
 
 /// What the frame thread is told besides poses.
@@ -305,6 +315,9 @@ impl FrameThread {
                     PipelineError::Render(RenderError::BadPose { .. }) => ErrorCode::BadValue,
                     _ => ErrorCode::Render,
                 };
+                if let Some(p) = &job.products {
+                    let _ = p.try_send(Err(e.to_string()));
+                }
                 job.reply.send(Message::from(ProtocolError {
                     code,
                     message: e.to_string(),
@@ -367,6 +380,9 @@ impl FrameThread {
         let frame_id = h.job.pose.frame_id;
         if let Err(e) = self.present(&mut h.made) {
             self.shared.stats.render_failures.inc();
+            if let Some(p) = &h.job.products {
+                let _ = p.try_send(Err(format!("presenting: {e}")));
+            }
             h.job.reply.send(Message::from(ProtocolError {
                 code: ErrorCode::Render,
                 message: format!("presenting: {e}"),
@@ -393,6 +409,12 @@ impl FrameThread {
         *self.shared.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(latest.clone());
         h.job.reply.send(Message::Ack(ack));
         self.publish_camera(&latest);
+        if let Some(p) = h.job.products.take() {
+            let _ = p.try_send(Ok(Products {
+                frame_id,
+                pl: std::mem::take(&mut h.made.pl),
+            }));
+        }
     }
 
     /// Puts the frame on the screen; afterwards `made`'s screen codes are filled.

@@ -125,6 +125,54 @@ pub struct ScreenImage {
     pub dn: Vec<u16>,
 }
 
+/// A compatible endpoint's way to the frame thread: its poses are presented on the screen like
+/// any other, and their `(P/L)` comes back.
+pub struct CompatLink {
+    shared: Arc<Shared>,
+    out: Outbound,
+    rx: mpsc::Receiver<Message>,
+}
+
+impl CompatLink {
+    pub fn new(shared: Arc<Shared>) -> CompatLink {
+        let (out, rx) = shared.outbound(64);
+        CompatLink { shared, out, rx }
+    }
+
+    /// Presents `pose` (blocking until the frame thread is done with it): its `(P/L)`, or why
+    /// not (refused, dropped for a newer pose, failed).
+    pub fn present(
+        &mut self,
+        pose: crate::scene::Pose,
+        exposure_s: Option<f64>,
+    ) -> Result<Vec<f64>, String> {
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let job = frames::Job {
+            pose,
+            exposure_s,
+            received: Instant::now(),
+            reply: self.out.clone(),
+            products: Some(tx),
+        };
+        self.shared.stats.poses_received.inc();
+        connection::submit(&self.shared, job).map_err(|e| e.message)?;
+        let r = rx.recv_timeout(std::time::Duration::from_secs(120));
+        // The acks and errors the frame thread sent this link.
+        let mut error = None;
+        while let Ok(m) = self.rx.try_recv() {
+            if let Message::Error { message, .. } = m {
+                error = Some(message);
+            }
+        }
+        match r {
+            Ok(p) => p.map(|p| p.pl),
+            Err(_) => Err(error.unwrap_or_else(|| {
+                "the pose was not presented (a newer pose replaced it, or the daemon stops)".into()
+            })),
+        }
+    }
+}
+
 /// What the dashboard and `/status` show of the latest rendered frame.
 #[derive(Clone, Debug, Serialize)]
 pub struct FrameReport {

@@ -299,13 +299,19 @@ struct Rendered {
     w: usize,
     h: usize,
     power_w: Vec<f64>,
-    depth_m: Vec<f64>,
     dn8: Vec<u8>,
 }
 
 /// One client's session.
 pub struct Session {
     config: Config,
+    /// The frame thread, when the session runs in the daemon: frames of the stimulator's own
+    /// camera are presented on the screen.
+    link: Option<super::CompatLink>,
+    /// The last render's scene and pose (for the depth map, computed when asked).
+    last_config: Option<Config>,
+    /// A warning for the client, sent before the answer of the call that raised it.
+    warning: Option<String>,
     body_name: String,
     state: State,
     renderer: Renderer,
@@ -321,7 +327,12 @@ pub fn version() -> String {
 }
 
 impl Session {
-    pub fn new(config: &Config) -> Result<Session, crate::render::RenderError> {
+    /// A session; with `link`, frames of the scene's own camera go through the frame thread
+    /// and onto the stimulator's screen.
+    pub fn new(
+        config: &Config,
+        link: Option<super::CompatLink>,
+    ) -> Result<Session, crate::render::RenderError> {
         let c = &config.scene.camera.intrinsics;
         let (fu, fv) = c.focal_px();
         let fov = |n: u32, f: f64| 2.0 * (f64::from(n) / 2.0 / f).atan();
@@ -345,6 +356,9 @@ impl Session {
             },
             renderer: Renderer::new(config.settings.threads)?,
             config: config.clone(),
+            link,
+            last_config: None,
+            warning: None,
             last: None,
         })
     }
@@ -356,21 +370,27 @@ impl Session {
             _ => String::new(),
         };
         let mut out = Vec::new();
+        let log = |out: &mut Vec<u8>, text: String| {
+            put_hash(
+                out,
+                &[
+                    (String::new(), QVar::String(String::new())),
+                    ("data".into(), QVar::Bytes(text.into_bytes())),
+                ],
+            );
+        };
         match self.command(&cmd, msg) {
             Ok(mut fields) => {
+                if let Some(w) = self.warning.take() {
+                    log(&mut out, format!("[warning] {cmd}: {w}\n"));
+                }
                 fields.insert(0, (String::new(), QVar::String(cmd)));
                 put_hash(&mut out, &fields);
             }
             Err(e) => {
                 tracing::debug!(command = %cmd, "SurRender call refused: {e}");
-                let log = format!("[error] {}: {e}\n", if cmd.is_empty() { "?" } else { &cmd });
-                put_hash(
-                    &mut out,
-                    &[
-                        (String::new(), QVar::String(String::new())),
-                        ("data".into(), QVar::Bytes(log.into_bytes())),
-                    ],
-                );
+                let name = if cmd.is_empty() { "?" } else { &cmd };
+                log(&mut out, format!("[error] {name}: {e}\n"));
                 put_hash(&mut out, &[(String::new(), QVar::String(cmd))]);
             }
         }
@@ -532,7 +552,7 @@ impl Session {
                 QVar::String(serde_json::to_string(&*s).unwrap_or_default()),
             )]),
             "render" => {
-                self.render()?;
+                self.warning = self.render()?;
                 Ok(none)
             }
             "getImage" | "getImageGray32F" | "getImageRGBA8" | "getImageGray8" | "getDepthMap" => {
@@ -556,23 +576,34 @@ impl Session {
         let mut c = self.config.clone();
         let i = &mut c.scene.camera.intrinsics;
         let [w, h] = s.image_px;
-        // Square pixels: the pitch stays, the focal length follows the horizontal FOV.
-        let f_px = f64::from(w) / 2.0 / (s.fov_rad[0] / 2.0).tan();
-        let fov_y = 2.0 * (f64::from(h) / 2.0 / f_px).atan();
-        if (fov_y - s.fov_rad[1]).abs() > 1e-6 * s.fov_rad[1].max(1.0) {
-            return Err(format!(
-                "fov_y {:.6} deg does not match a {w} x {h} px image of square pixels with \
-                 fov_x {:.6} deg (it would be {:.6} deg)",
-                s.fov_rad[1].to_degrees(),
-                s.fov_rad[0].to_degrees(),
-                fov_y.to_degrees()
-            ));
+        let (fu, fv) = i.focal_px();
+        let own_fov =
+            |n: u32, f: f64, fov: f64| (2.0 * (f64::from(n) / 2.0 / f).atan() - fov).abs();
+        let own = [w, h] == [i.width_px, i.height_px]
+            && own_fov(w, fu, s.fov_rad[0]) < 1e-9
+            && own_fov(h, fv, s.fov_rad[1]) < 1e-9;
+        // The scene's own camera stays exactly as it is (it is the one the stimulator's chain
+        // is calibrated for); another size or field of view makes a pinhole camera.
+        if !own {
+            // Square pixels: the pitch stays, the focal length follows the horizontal FOV.
+            let f_px = f64::from(w) / 2.0 / (s.fov_rad[0] / 2.0).tan();
+            let fov_y = 2.0 * (f64::from(h) / 2.0 / f_px).atan();
+            if (fov_y - s.fov_rad[1]).abs() > 1e-6 * s.fov_rad[1].max(1.0) {
+                return Err(format!(
+                    "fov_y {:.6} deg does not match a {w} x {h} px image of square pixels with \
+                     fov_x {:.6} deg (it would be {:.6} deg)",
+                    s.fov_rad[1].to_degrees(),
+                    s.fov_rad[0].to_degrees(),
+                    fov_y.to_degrees()
+                ));
+            }
+            i.width_px = w;
+            i.height_px = h;
+            i.focal_length_m = f_px * i.pixel_pitch_m[0];
+            i.pixel_pitch_m[1] = i.pixel_pitch_m[0];
+            i.principal_point_px = [f64::from(w) / 2.0, f64::from(h) / 2.0];
+            i.distortion = Default::default();
         }
-        i.width_px = w;
-        i.height_px = h;
-        i.focal_length_m = f_px * i.pixel_pitch_m[0];
-        i.pixel_pitch_m[1] = i.pixel_pitch_m[0];
-        i.principal_point_px = [f64::from(w) / 2.0, f64::from(h) / 2.0];
         c.scene.camera.detector.exposure_s = s.integration_time_s;
         let body_from_world = DQuat::from_xyzw(
             s.body_attitude_wxyz[1],
@@ -592,41 +623,51 @@ impl Session {
         Ok(c)
     }
 
-    fn render(&mut self) -> Result<(), String> {
+    /// Renders the session's pose: through the frame thread (and onto the screen) when the
+    /// camera is the scene's own, else here for the client only (with a warning).
+    fn render(&mut self) -> Result<Option<String>, String> {
         let c = self.frame_config()?;
-        let settings = crate::app::render::frame_settings(&c, &c.pose);
-        let frame = self
-            .renderer
-            .render(&c.scene, &c.pose, &settings)
-            .map_err(|e| e.to_string())?;
+        let own_camera = c.scene.camera.intrinsics == self.config.scene.camera.intrinsics;
+        let mut warning = None;
+        let pl = match (&mut self.link, own_camera) {
+            (Some(link), true) => {
+                link.present(c.pose.clone(), Some(self.state.integration_time_s))?
+            }
+            (link, _) => {
+                if link.is_some() {
+                    warning = Some(
+                        "the image size or field of view differs from the stimulator's camera: \
+                         rendered for the client, not presented on the screen"
+                            .to_string(),
+                    );
+                }
+                let settings = crate::app::render::frame_settings(&c, &c.pose);
+                self.renderer
+                    .render(&c.scene, &c.pose, &settings)
+                    .map_err(|e| e.to_string())?
+                    .pl
+            }
+        };
         let sun = &c.scene.sun;
         let scale = self
             .state
             .sun_power_w_sr
             .map_or(1.0, |p| p / (sun.radiance_integral(None) * sun.area_m2()));
         let radiance = sun.radiance_integral(c.power_band_m) * scale;
-        let power_w = frame.pl.iter().map(|x| x * radiance).collect();
+        let power_w = pl.iter().map(|x| x * radiance).collect();
         let det = &c.scene.camera.detector;
-        let pl_scaled: Vec<f64> = frame.pl.iter().map(|x| x * scale).collect();
-        let (_, dn) = det.image(
-            &pl_scaled,
-            (frame.width, frame.height),
-            sun,
-            c.pose.frame_id,
+        let pl_scaled: Vec<f64> = pl.iter().map(|x| x * scale).collect();
+        let (w, h) = (
+            c.scene.camera.intrinsics.width_px as usize,
+            c.scene.camera.intrinsics.height_px as usize,
         );
+        let (_, dn) = det.image(&pl_scaled, (w, h), sun, c.pose.frame_id);
         let shift = det.saved_bits.saturating_sub(8);
         let dn8 = dn.iter().map(|&d| (d >> shift).min(255) as u8).collect();
-        self.last = Some(Rendered {
-            w: frame.width,
-            h: frame.height,
-            depth_m: frame
-                .depth_m
-                .unwrap_or_else(|| vec![f64::NAN; frame.width * frame.height]),
-            power_w,
-            dn8,
-        });
+        self.last = Some(Rendered { w, h, power_w, dn8 });
+        self.last_config = Some(c);
         self.state.frames_rendered += 1;
-        Ok(())
+        Ok(warning)
     }
 
     fn image(&self, cmd: &str) -> Result<Vec<(String, QVar)>, String> {
@@ -670,8 +711,17 @@ impl Session {
                 "image_data"
             }
             _ => {
+                // The range along each pixel's line of sight, computed when asked.
+                let c = self.last_config.as_ref().ok_or("no image rendered yet")?;
+                let body = &c.scene.body;
+                let depth = crate::render::depth::depth_map(
+                    &c.scene.camera.intrinsics,
+                    &body.shape,
+                    body.relief.as_ref(),
+                    &c.pose,
+                );
                 for i in rows(1) {
-                    data.extend_from_slice(&r.depth_m[i].to_ne_bytes());
+                    data.extend_from_slice(&depth[i].to_ne_bytes());
                 }
                 "depth_data"
             }
@@ -757,7 +807,7 @@ fn serve(stream: TcpStream, peer: String, shared: Arc<super::Shared>) {
     let _ = stream.set_nonblocking(false);
     let _ = stream.set_nodelay(true);
     let config = shared.scene().config;
-    let mut session = match Session::new(&config) {
+    let mut session = match Session::new(&config, Some(super::CompatLink::new(shared.clone()))) {
         Ok(s) => s,
         Err(e) => return tracing::error!(%peer, "SurRender session: {e}"),
     };

@@ -160,7 +160,7 @@ fn pose_loop(udp: UdpSocket, conn: Arc<Mutex<Option<(TcpStream, u64)>>>, shared:
         };
         let png = decode(&buf[..n]).and_then(|p| {
             let pose = to_pose(&p, config.corto_metres_per_unit.unwrap_or(1.0), *count)?;
-            let pl = link.present(pose.clone(), None)?;
+            let pl = link.present(pose, None)?;
             image_png(&config, &pose, &pl)
         });
         match png {

@@ -630,9 +630,7 @@ impl Session {
         let own_camera = c.scene.camera.intrinsics == self.config.scene.camera.intrinsics;
         let mut warning = None;
         let pl = match (&mut self.link, own_camera) {
-            (Some(link), true) => {
-                link.present(c.pose.clone(), Some(self.state.integration_time_s))?
-            }
+            (Some(link), true) => link.present(c.pose, Some(self.state.integration_time_s))?,
             (link, _) => {
                 if link.is_some() {
                     warning = Some(

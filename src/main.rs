@@ -148,6 +148,21 @@ enum Command {
         #[arg(long)]
         token_file: Option<PathBuf>,
     },
+    /// What the SurRender and CORTO endpoints add to a frame's latency over the native
+    /// protocol, for the same poses (an in-process daemon serving all three, lockstep).
+    BenchEndpoints {
+        /// Trajectory CSV (positions and attitudes in the body frame).
+        trajectory: PathBuf,
+        /// Scene with a [stimulator] section (default: the embedded config/daemon.toml).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Poses, spread over the trajectory.
+        #[arg(long, default_value_t = 100)]
+        frames: usize,
+        /// cpu | offscreen (the GPU presenter) | auto.
+        #[arg(long, default_value = "cpu")]
+        present: String,
+    },
     /// Time the stimulator's per-frame path on the GPU: F_eff -> screen region -> LUT pass ->
     /// presented off-screen and read back; per stage, with the CPU reference's agreement.
     BenchDisplay {
@@ -348,6 +363,36 @@ fn run() -> anyhow::Result<()> {
                 std::fs::write(&p, &text).with_context(|| format!("{}", p.display()))?;
             }
             println!("{}", serde_json::to_string(&r)?);
+        }
+        Command::BenchEndpoints {
+            trajectory,
+            scene,
+            frames,
+            present,
+        } => {
+            use optistim::server::frames::PresenterChoice;
+            let (text, label) = match &scene {
+                Some(p) => (
+                    std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?,
+                    p.display().to_string(),
+                ),
+                None => (
+                    optistim::server::DEFAULT_CONFIG.to_string(),
+                    "<embedded config/daemon.toml>".to_string(),
+                ),
+            };
+            let cfg = config::parse(&text, &label)?;
+            let all = app::replay::read_poses(&trajectory)?;
+            let step = (all.len() / frames.max(1)).max(1);
+            let poses: Vec<_> = all.into_iter().step_by(step).take(frames).collect();
+            let presenter = match present.as_str() {
+                "cpu" => PresenterChoice::Cpu,
+                "offscreen" => PresenterChoice::Offscreen,
+                "auto" => PresenterChoice::Auto,
+                other => anyhow::bail!("--present {other}: allowed are cpu, offscreen, auto"),
+            };
+            let report = app::bench_endpoints::run(&cfg, &label, &poses, presenter)?;
+            println!("{}", serde_json::to_string(&report)?);
         }
         Command::BenchDisplay {
             scene,

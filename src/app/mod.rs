@@ -1,6 +1,7 @@
 //! The commands behind the binary. Each returns a typed result that `main.rs` prints.
 
 pub mod bench;
+pub mod bench_endpoints;
 pub mod calibrate;
 pub mod compare;
 pub mod render;

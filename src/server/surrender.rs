@@ -299,7 +299,9 @@ struct Rendered {
     w: usize,
     h: usize,
     power_w: Vec<f64>,
-    dn8: Vec<u8>,
+    /// `(P/L)` scaled for the Sun's power set, for the DN images (made when asked: the
+    /// detector's noises cost more than the render of a small body).
+    pl_scaled: Vec<f64>,
 }
 
 /// One client's session.
@@ -653,16 +655,17 @@ impl Session {
             .map_or(1.0, |p| p / (sun.radiance_integral(None) * sun.area_m2()));
         let radiance = sun.radiance_integral(c.power_band_m) * scale;
         let power_w = pl.iter().map(|x| x * radiance).collect();
-        let det = &c.scene.camera.detector;
         let pl_scaled: Vec<f64> = pl.iter().map(|x| x * scale).collect();
         let (w, h) = (
             c.scene.camera.intrinsics.width_px as usize,
             c.scene.camera.intrinsics.height_px as usize,
         );
-        let (_, dn) = det.image(&pl_scaled, (w, h), sun, c.pose.frame_id);
-        let shift = det.saved_bits.saturating_sub(8);
-        let dn8 = dn.iter().map(|&d| (d >> shift).min(255) as u8).collect();
-        self.last = Some(Rendered { w, h, power_w, dn8 });
+        self.last = Some(Rendered {
+            w,
+            h,
+            power_w,
+            pl_scaled,
+        });
         self.last_config = Some(c);
         self.state.frames_rendered += 1;
         Ok(warning)
@@ -674,6 +677,13 @@ impl Session {
             .as_ref()
             .ok_or("no image rendered yet: call render first")?;
         let (w, h) = (r.w, r.h);
+        let dn8 = || -> Result<Vec<u8>, String> {
+            let c = self.last_config.as_ref().ok_or("no image rendered yet")?;
+            let det = &c.scene.camera.detector;
+            let (_, dn) = det.image(&r.pl_scaled, (w, h), &c.scene.sun, c.pose.frame_id);
+            let shift = det.saved_bits.saturating_sub(8);
+            Ok(dn.iter().map(|&d| (d >> shift).min(255) as u8).collect())
+        };
         // The client flips rows (np.flipud): rows go bottom-up.
         let rows = |i: usize| {
             (0..h)
@@ -698,14 +708,16 @@ impl Session {
                 "image_data"
             }
             "getImageRGBA8" => {
+                let dn8 = dn8()?;
                 for i in rows(1) {
-                    let g = r.dn8[i];
+                    let g = dn8[i];
                     data.extend_from_slice(&[g, g, g, 255]);
                 }
                 "image_data"
             }
             "getImageGray8" => {
-                data.extend(rows(1).map(|i| r.dn8[i]));
+                let dn8 = dn8()?;
+                data.extend(rows(1).map(|i| dn8[i]));
                 "image_data"
             }
             _ => {

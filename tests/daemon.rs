@@ -182,23 +182,22 @@ fn hold_and_trigger_present_on_demand() {
     assert_eq!(&png[1..4], b"PNG");
 }
 
-#[test]
-fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
+/// `optistim serve` of `scene` on the CPU presenter, recording to `record`, in `mode`: the
+/// process, its stdout's lines after the first, and the pose address that line gave.
+fn serve_recorded(
+    scene: &Path,
+    record: &Path,
+    mode: &str,
+) -> (
+    std::process::Child,
+    std::io::Lines<std::io::BufReader<std::process::ChildStdout>>,
+    std::net::SocketAddr,
+) {
     use std::io::{BufRead, BufReader};
-    let dir = TempDir::new("sigterm");
-    let scene = dir.join("daemon.toml");
-    std::fs::write(&scene, small_daemon_config()).unwrap();
-    let record = dir.join("rec.jsonl");
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
         .args(["serve", "--config", scene.to_str().unwrap()])
-        .args([
-            "--listen",
-            "127.0.0.1:0",
-            "--http",
-            "127.0.0.1:0",
-            "--present",
-            "cpu",
-        ])
+        .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+        .args(["--present", "cpu", "--mode", mode])
         .args(["--record", record.to_str().unwrap()])
         .env_remove("DISPLAY")
         .stdout(std::process::Stdio::piped())
@@ -206,7 +205,17 @@ fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
         .unwrap();
     let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
     let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
-    let addr: std::net::SocketAddr = first["listening"].as_str().unwrap().parse().unwrap();
+    let addr = first["listening"].as_str().unwrap().parse().unwrap();
+    (child, lines, addr)
+}
+
+#[test]
+fn sigterm_stops_the_daemon_cleanly_with_its_recording_complete() {
+    let dir = TempDir::new("sigterm");
+    let scene = dir.join("daemon.toml");
+    std::fs::write(&scene, small_daemon_config()).unwrap();
+    let record = dir.join("rec.jsonl");
+    let (mut child, mut lines, addr) = serve_recorded(&scene, &record, "free");
     let mut c = Client::connect(addr);
     for i in 0..5 {
         c.send(&Message::Pose(nrho_pose(i)));
@@ -312,23 +321,11 @@ fn a_serial_line_that_vanishes_and_comes_back_is_served_again() {
 #[test]
 fn sigterm_with_frames_in_flight_answers_every_pose() {
     use optistim::server::protocol::ErrorCode;
-    use std::io::{BufRead, BufReader};
     let dir = TempDir::new("sigterm-inflight");
     let scene = dir.join("daemon.toml");
     std::fs::write(&scene, optistim::server::DEFAULT_CONFIG).unwrap();
     let record = dir.join("rec.jsonl");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
-        .args(["serve", "--config", scene.to_str().unwrap()])
-        .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"])
-        .args(["--present", "cpu", "--mode", "lockstep"])
-        .args(["--record", record.to_str().unwrap()])
-        .env_remove("DISPLAY")
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
-    let addr: std::net::SocketAddr = first["listening"].as_str().unwrap().parse().unwrap();
+    let (mut child, mut lines, addr) = serve_recorded(&scene, &record, "lockstep");
     let mut c = Client::connect(addr);
     for p in poses(20) {
         c.send(&Message::Pose(p));

@@ -110,6 +110,26 @@ fn start_xvfb() -> (Reaped, String) {
     panic!("could not start Xvfb on any display :91-:119");
 }
 
+/// An X server with openbox on it, and a private XDG runtime folder (`tag` names it).
+fn x_session(tag: &str) -> (Reaped, String, Reaped, PathBuf) {
+    let (xvfb, display) = start_xvfb();
+    let xdg = std::env::temp_dir().join(format!("optistim-xdg-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&xdg).unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&xdg, std::fs::Permissions::from_mode(0o700)).unwrap();
+    }
+    let wm = Reaped(
+        Command::new(tool("openbox"))
+            .env("DISPLAY", &display)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start openbox"),
+    );
+    (xvfb, display, wm, xdg)
+}
+
 /// Reads an XWD dump (X11's `XWDFileHeader`, big-endian, then the colour map and the pixels)
 /// of a 24/32-bit TrueColor screen: the red channel of every pixel.
 fn xwd_red(bytes: &[u8]) -> (usize, usize, Vec<u8>) {
@@ -140,22 +160,7 @@ fn xwd_red(bytes: &[u8]) -> (usize, usize, Vec<u8>) {
 
 #[test]
 fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
-    let (_xvfb, display) = start_xvfb();
-    let xdg = std::env::temp_dir().join(format!("optistim-xdg-{}", std::process::id()));
-    std::fs::create_dir_all(&xdg).unwrap();
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&xdg, std::fs::Permissions::from_mode(0o700)).unwrap();
-    }
-    let _wm = Reaped(
-        Command::new(tool("openbox"))
-            .env("DISPLAY", &display)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start openbox"),
-    );
+    let (_xvfb, display, _wm, xdg) = x_session("w");
 
     // The stimulator scene on a 1280 x 1024 screen at 8 bit, rounded (no dither).
     let dir = std::env::temp_dir().join(format!("optistim-window-{}", std::process::id()));
@@ -252,21 +257,7 @@ fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
 /// latest frame's codes (`/frame/latest.png`) within 1 LSB.
 #[test]
 fn the_daemon_in_window_mode_streams_poses_in_lockstep_under_xvfb() {
-    let (_xvfb, display) = start_xvfb();
-    let xdg = std::env::temp_dir().join(format!("optistim-xdg-d-{}", std::process::id()));
-    std::fs::create_dir_all(&xdg).unwrap();
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&xdg, std::fs::Permissions::from_mode(0o700)).unwrap();
-    }
-    let _wm = Reaped(
-        Command::new(tool("openbox"))
-            .env("DISPLAY", &display)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start openbox"),
-    );
+    let (_xvfb, display, _wm, xdg) = x_session("d");
     let dir = std::env::temp_dir().join(format!("optistim-window-d-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene = optistim::server::DEFAULT_CONFIG

@@ -110,8 +110,22 @@ fn start_xvfb() -> (Reaped, String) {
     panic!("could not start Xvfb on any display :91-:119");
 }
 
-/// An X server with openbox on it, and a private XDG runtime folder (`tag` names it).
-fn x_session(tag: &str) -> (Reaped, String, Reaped, PathBuf) {
+/// The tests of this file take X displays in turn: two Xvfb started at once on the same free
+/// display number both see it free, the loser dies, and both tests would use the winner's.
+static X_TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// An X server with openbox on it, and a private XDG runtime folder (`tag` names it); the
+/// guard holds this file's X turn.
+fn x_session(
+    tag: &str,
+) -> (
+    std::sync::MutexGuard<'static, ()>,
+    Reaped,
+    String,
+    Reaped,
+    PathBuf,
+) {
+    let turn = X_TURN.lock().unwrap_or_else(|e| e.into_inner());
     let (xvfb, display) = start_xvfb();
     let xdg = std::env::temp_dir().join(format!("optistim-xdg-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&xdg).unwrap();
@@ -127,7 +141,7 @@ fn x_session(tag: &str) -> (Reaped, String, Reaped, PathBuf) {
             .spawn()
             .expect("start openbox"),
     );
-    (xvfb, display, wm, xdg)
+    (turn, xvfb, display, wm, xdg)
 }
 
 /// Reads an XWD dump (X11's `XWDFileHeader`, big-endian, then the colour map and the pixels)
@@ -160,7 +174,7 @@ fn xwd_red(bytes: &[u8]) -> (usize, usize, Vec<u8>) {
 
 #[test]
 fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
-    let (_xvfb, display, _wm, xdg) = x_session("w");
+    let (_turn, _xvfb, display, _wm, xdg) = x_session("w");
 
     // The stimulator scene on a 1280 x 1024 screen at 8 bit, rounded (no dither).
     let dir = std::env::temp_dir().join(format!("optistim-window-{}", std::process::id()));
@@ -257,7 +271,7 @@ fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
 /// latest frame's codes (`/frame/latest.png`) within 1 LSB.
 #[test]
 fn the_daemon_in_window_mode_streams_poses_in_lockstep_under_xvfb() {
-    let (_xvfb, display, _wm, xdg) = x_session("d");
+    let (_turn, _xvfb, display, _wm, xdg) = x_session("d");
     let dir = std::env::temp_dir().join(format!("optistim-window-d-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene = optistim::server::DEFAULT_CONFIG
@@ -278,13 +292,22 @@ fn the_daemon_in_window_mode_streams_poses_in_lockstep_under_xvfb() {
             .env_remove("WAYLAND_DISPLAY")
             .env("XDG_RUNTIME_DIR", &xdg)
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(Stdio::piped())
             .spawn()
             .expect("start optistim serve"),
     );
     let mut lines = BufReader::new(serve.0.stdout.take().unwrap()).lines();
-    let first: serde_json::Value =
-        serde_json::from_str(&lines.next().unwrap().unwrap()).expect("the daemon's address line");
+    let Some(Ok(line)) = lines.next() else {
+        let mut err = String::new();
+        if let Some(mut e) = serve.0.stderr.take() {
+            let _ = std::io::Read::read_to_string(&mut e, &mut err);
+        }
+        panic!(
+            "the daemon stopped before serving: {:?}\n{err}",
+            serve.0.wait()
+        );
+    };
+    let first: serde_json::Value = serde_json::from_str(&line).expect("the daemon's address line");
     assert!(
         first["presenter"].as_str().unwrap().contains("window"),
         "{first}"

@@ -202,3 +202,66 @@ fn the_published_surrender_client_drives_optistim_unchanged() {
     assert_eq!(after.len(), 16, "getImageSize answered after the refusal");
     d.shutdown();
 }
+
+/// At most [`surrender::MAX_CONNECTIONS`] SurRender clients at once (each has a thread and a
+/// renderer): the next is told so and closed; a freed place is taken again.
+#[test]
+fn surrender_connections_are_bounded() {
+    use optistim::server::surrender::{self, MAX_CONNECTIONS, QVar};
+    let mut o = serve_options(
+        &small_daemon_config(),
+        PresenterChoice::Cpu,
+        Mode::Free,
+        None,
+        None,
+    );
+    o.surrender = Some("127.0.0.1:0".parse().unwrap());
+    let d = optistim::server::Server::start(o).unwrap();
+    let addr = d.surrender_addr.unwrap();
+    let version = |s: &mut std::net::TcpStream| {
+        use std::io::Write;
+        s.write_all(&surrender::encode_hash(&[(
+            String::new(),
+            QVar::String("version".into()),
+        )]))
+        .unwrap();
+        surrender::read_hash(s).unwrap()
+    };
+    let mut held: Vec<_> = (0..MAX_CONNECTIONS)
+        .map(|_| {
+            let mut s = std::net::TcpStream::connect(addr).unwrap();
+            assert_eq!(version(&mut s)[0].1, QVar::String("version".into()));
+            s
+        })
+        .collect();
+    let mut extra = std::net::TcpStream::connect(addr).unwrap();
+    let refusal = surrender::read_hash(&mut extra).unwrap();
+    let text = match &refusal[1].1 {
+        QVar::Bytes(b) => String::from_utf8_lossy(b).into_owned(),
+        other => panic!("{other:?}"),
+    };
+    assert!(
+        text.contains("[error]") && text.contains("clients at once"),
+        "{text}"
+    );
+    drop(held.pop());
+    let t0 = std::time::Instant::now();
+    loop {
+        let mut s = std::net::TcpStream::connect(addr).unwrap();
+        let h = surrender::read_hash(&mut {
+            use std::io::Write;
+            s.write_all(&surrender::encode_hash(&[(
+                String::new(),
+                QVar::String("version".into()),
+            )]))
+            .unwrap();
+            &s
+        });
+        if matches!(h.as_deref(), Ok([(_, QVar::String(v)), ..]) if v == "version") {
+            break;
+        }
+        assert!(t0.elapsed().as_secs() < 10, "the freed place was not taken");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    d.shutdown();
+}

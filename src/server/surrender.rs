@@ -21,8 +21,13 @@ use std::net::{TcpListener, TcpStream};
 use std::sync::Arc;
 use std::time::Duration;
 
-/// The largest string, byte array or collection a client may send [bytes or elements].
+/// The largest string or byte array a client may send [bytes].
 pub const MAX_ITEM: usize = 64 << 20;
+/// The most elements of a list or hash.
+pub const MAX_ELEMENTS: usize = 1 << 20;
+/// SurRender connections served at once (each has a thread and a renderer); more are told
+/// so and closed.
+pub const MAX_CONNECTIONS: usize = 16;
 const MAX_DEPTH: usize = 16;
 
 /// A `QVariant` of the types the client writes and reads.
@@ -121,7 +126,7 @@ impl<R: Read> Reader<'_, R> {
     }
     fn count(&mut self) -> Result<usize, WireError> {
         let n = self.u32()? as usize;
-        if n > MAX_ITEM / 16 {
+        if n > MAX_ELEMENTS {
             return Err(WireError::Malformed(format!("a collection of {n} items")));
         }
         Ok(n)
@@ -793,13 +798,35 @@ pub fn spawn(
         .name("optistim-surrender".into())
         .spawn(move || {
             let stop = shared.shutdown.clone();
+            let live = Arc::new(std::sync::atomic::AtomicUsize::new(0));
             while !*stop.borrow() {
                 match listener.accept() {
-                    Ok((stream, peer)) => {
-                        let shared = shared.clone();
-                        let _ = std::thread::Builder::new()
+                    Ok((mut stream, peer)) => {
+                        use std::sync::atomic::Ordering;
+                        if live.fetch_add(1, Ordering::SeqCst) >= MAX_CONNECTIONS {
+                            live.fetch_sub(1, Ordering::SeqCst);
+                            tracing::warn!(%peer, "SurRender: {MAX_CONNECTIONS} clients already");
+                            let log = format!(
+                                "[error] this daemon serves {MAX_CONNECTIONS} SurRender clients \
+                                 at once; the connection is closed\n"
+                            );
+                            let _ = stream.set_nonblocking(false);
+                            let _ = stream.write_all(&encode_hash(&[
+                                (String::new(), QVar::String(String::new())),
+                                ("data".into(), QVar::Bytes(log.into_bytes())),
+                            ]));
+                            continue;
+                        }
+                        let (shared, done) = (shared.clone(), live.clone());
+                        let spawned = std::thread::Builder::new()
                             .name("optistim-surrender-conn".into())
-                            .spawn(move || serve(stream, peer.to_string(), shared));
+                            .spawn(move || {
+                                serve(stream, peer.to_string(), shared);
+                                done.fetch_sub(1, Ordering::SeqCst);
+                            });
+                        if spawned.is_err() {
+                            live.fetch_sub(1, Ordering::SeqCst);
+                        }
                     }
                     Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
                         std::thread::sleep(Duration::from_millis(20));

@@ -618,3 +618,47 @@ fn a_full_recording_disk_is_reported_and_the_daemon_serves_on() {
         "a full disk is not a flushed recording"
     );
 }
+
+/// `fidelity = "budget"` in the daemon: every ack carries what the planner chose and the error
+/// it predicts (the binary tail), and `/status` has the budget and the latest frame's plan;
+/// the dashboard's error report reads them.
+#[test]
+fn a_budgeted_daemon_reports_each_frames_plan_in_the_ack_and_status() {
+    let text = small_daemon_config().replace(
+        "preset = \"default\"",
+        "preset = \"default\"\nfidelity = \"budget\"\n\n[render.budget]\nmedian = 1e-2\np99 = 1e-1\ntotal = 1e-3",
+    );
+    let d = start_daemon(&text, PresenterChoice::Cpu, Mode::Lockstep, None, None);
+    let mut c = Client::connect(d.tcp_addr);
+    c.send(&Message::Pose(nrho_pose(4)));
+    let ack = loop {
+        match c.recv(WAIT) {
+            Some(Message::Ack(a)) if a.frame_id == 4 => break a,
+            Some(Message::Error { message, .. }) => panic!("{message}"),
+            Some(_) => continue,
+            None => panic!("no ack"),
+        }
+    };
+    assert_eq!(ack.status, AckStatus::Presented);
+    let f = ack.fidelity.expect("the ack carries the plan");
+    assert!(
+        f.points_per_pixel > 0.0 && f.predicted_median > 0.0,
+        "{f:?}"
+    );
+    assert!(f.predicted_p99 >= f.predicted_median, "{f:?}");
+    let (code, body) = http(d.http_addr, "GET", "/status", b"");
+    assert_eq!(code, 200);
+    let s: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let fid = &s["fidelity"];
+    assert_eq!(fid["mode"], "budget", "{fid}");
+    assert_eq!(fid["budget"]["median"].as_f64(), Some(1e-2), "{fid}");
+    let plan = &fid["last_frame"]["plan"];
+    assert_eq!(fid["last_frame"]["frame_id"].as_u64(), Some(4), "{fid}");
+    assert_eq!(plan["points_per_pixel"].as_f64(), Some(f.points_per_pixel));
+    assert_eq!(
+        plan["predicted"]["median"].as_f64(),
+        Some(f.predicted_median)
+    );
+    assert_eq!(plan["meets_budget"].as_bool(), Some(f.meets_budget));
+    assert_eq!(s["last_frame"]["plan"], *plan, "the dashboard's report");
+}

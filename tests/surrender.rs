@@ -265,3 +265,94 @@ fn surrender_connections_are_bounded() {
     }
     d.shutdown();
 }
+
+/// A camera other than the scene's (another image size and field of view): rendered for the
+/// client with a pinhole camera of the scene's pixel pitch, not presented, and the client is
+/// warned; the image has the size asked for and equals the renderer's for that camera.
+#[test]
+fn another_camera_is_rendered_for_the_client_only_with_a_warning() {
+    use optistim::server::surrender::{self, QVar};
+    use std::io::Write;
+    let text = small_daemon_config();
+    let config = optistim::config::parse(&text, "<test>").unwrap();
+    let mut o = serve_options(&text, PresenterChoice::Cpu, Mode::Free, None, None);
+    o.surrender = Some("127.0.0.1:0".parse().unwrap());
+    let d = optistim::server::Server::start(o).unwrap();
+    let mut s = std::net::TcpStream::connect(d.surrender_addr.unwrap()).unwrap();
+    fn send(s: &mut std::net::TcpStream, fields: Vec<(String, QVar)>) -> Vec<(String, QVar)> {
+        s.write_all(&surrender::encode_hash(&fields)).unwrap();
+        surrender::read_hash(s).unwrap()
+    }
+    let cmd = |c: &str| (String::new(), QVar::String(c.into()));
+    let (w, h) = (64u32, 48u32);
+    let fov_x = 20f64;
+    let fov_y = (2.0 * ((f64::from(h) / f64::from(w)) * (fov_x.to_radians() / 2.0).tan()).atan())
+        .to_degrees();
+    send(
+        &mut s,
+        vec![
+            cmd("setImageSize"),
+            ("width".into(), QVar::Int(w as i32)),
+            ("height".into(), QVar::Int(h as i32)),
+        ],
+    );
+    send(
+        &mut s,
+        vec![
+            cmd("setCameraFOVDeg"),
+            ("fov_x".into(), QVar::Double(fov_x)),
+            ("fov_y".into(), QVar::Double(fov_y)),
+        ],
+    );
+    let warned = send(&mut s, vec![cmd("render")]);
+    let text_of = |h: &[(String, QVar)]| match h.iter().find(|(k, _)| k == "data") {
+        Some((_, QVar::Bytes(b))) => String::from_utf8_lossy(b).into_owned(),
+        _ => String::new(),
+    };
+    assert!(
+        text_of(&warned).contains("[warning] render") && text_of(&warned).contains("not presented"),
+        "{warned:?}"
+    );
+    let _reply = surrender::read_hash(&mut s).unwrap();
+    let img = send(&mut s, vec![cmd("getImageGray32F")]);
+    let get = |k: &str| img.iter().find(|(key, _)| key == k).map(|(_, v)| v.clone());
+    assert_eq!(get("w"), Some(QVar::Int(w as i32)));
+    assert_eq!(get("h"), Some(QVar::Int(h as i32)));
+    let Some(QVar::Bytes(data)) = get("image_data") else {
+        panic!("{img:?}")
+    };
+    assert_eq!(data.len(), (w * h * 4) as usize);
+    assert_eq!(d.shared.stats.frames_presented.get(), 0, "not presented");
+
+    // The same camera, rendered here: pitch kept, focal length from fov_x, no distortion.
+    let mut c = config.clone();
+    let i = &mut c.scene.camera.intrinsics;
+    let f_px = f64::from(w) / 2.0 / (fov_x.to_radians() / 2.0).tan();
+    i.width_px = w;
+    i.height_px = h;
+    i.focal_length_m = f_px * i.pixel_pitch_m[0];
+    i.pixel_pitch_m[1] = i.pixel_pitch_m[0];
+    i.principal_point_px = [f64::from(w) / 2.0, f64::from(h) / 2.0];
+    i.distortion = Default::default();
+    let mut pose = c.pose;
+    pose.frame_id = 0;
+    let settings = optistim::app::render::frame_settings(&c, &pose);
+    let f = optistim::render::Renderer::new(1)
+        .unwrap()
+        .render(&c.scene, &pose, &settings)
+        .unwrap();
+    let radiance = c.scene.sun.radiance_integral(c.power_band_m);
+    let got: Vec<f32> = data
+        .chunks_exact(4)
+        .map(|b| f32::from_ne_bytes(b.try_into().unwrap()))
+        .collect();
+    // Rows come bottom-up.
+    for y in 0..h as usize {
+        for x in 0..w as usize {
+            let want = (f.pl[y * w as usize + x] * radiance) as f32;
+            let g = got[(h as usize - 1 - y) * w as usize + x];
+            assert_eq!(g.to_bits(), want.to_bits(), "pixel {x},{y}");
+        }
+    }
+    d.shutdown();
+}

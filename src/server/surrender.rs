@@ -10,8 +10,9 @@
 //! (`{"": "", "data": "[error] ..."}`), which the client raises as a `RuntimeError`, and the
 //! connection stays. Units, frames and the image's meaning: `docs/protocol.md`, "SurRender".
 //!
-//! Each connection is served by its own thread with blocking I/O and its own renderer (never
-//! the async runtime). The body, its reflectance and maps come from the scene the daemon runs.
+//! Each connection is served by its own thread with blocking I/O (never the async runtime);
+//! its frames go through the frame thread, or through a renderer of its own for a camera
+//! other than the scene's. The body, its reflectance and maps come from the scene the daemon runs.
 
 use crate::config::Config;
 use crate::render::Renderer;
@@ -25,7 +26,7 @@ use std::time::Duration;
 pub const MAX_ITEM: usize = 64 << 20;
 /// The most elements of a list or hash.
 pub const MAX_ELEMENTS: usize = 1 << 20;
-/// SurRender connections served at once (each has a thread and a renderer); more are told
+/// SurRender connections served at once (each has a thread, and maybe a renderer); more are told
 /// so and closed.
 pub const MAX_CONNECTIONS: usize = 16;
 const MAX_DEPTH: usize = 16;
@@ -321,7 +322,9 @@ pub struct Session {
     warning: Option<String>,
     body_name: String,
     state: State,
-    renderer: Renderer,
+    /// For frames rendered here (another camera than the scene's, or no frame thread): made
+    /// on the first such frame.
+    renderer: Option<Renderer>,
     last: Option<Rendered>,
 }
 
@@ -336,15 +339,12 @@ pub fn version() -> String {
 impl Session {
     /// A session; with `link`, frames of the scene's own camera go through the frame thread
     /// and onto the stimulator's screen.
-    pub fn new(
-        config: &Config,
-        link: Option<super::CompatLink>,
-    ) -> Result<Session, crate::render::RenderError> {
+    pub fn new(config: &Config, link: Option<super::CompatLink>) -> Session {
         let c = &config.scene.camera.intrinsics;
         let (fu, fv) = c.focal_px();
         let fov = |n: u32, f: f64| 2.0 * (f64::from(n) / 2.0 / f).atan();
         let q = |q: DQuat| [q.w, q.x, q.y, q.z];
-        Ok(Session {
+        Session {
             body_name: config.scene.body.name.clone(),
             state: State {
                 quaternion: QuaternionOrder::XyzScalar,
@@ -361,13 +361,13 @@ impl Session {
                 compression_level: 0,
                 frames_rendered: 0,
             },
-            renderer: Renderer::new(config.settings.threads)?,
+            renderer: None,
             config: config.clone(),
             link,
             last_config: None,
             warning: None,
             last: None,
-        })
+        }
     }
 
     /// Answers one message: the bytes to send back.
@@ -647,7 +647,13 @@ impl Session {
                     );
                 }
                 let settings = crate::app::render::frame_settings(&c, &c.pose);
-                self.renderer
+                let renderer = match &mut self.renderer {
+                    Some(r) => r,
+                    None => self
+                        .renderer
+                        .insert(Renderer::new(c.settings.threads).map_err(|e| e.to_string())?),
+                };
+                renderer
                     .render(&c.scene, &c.pose, &settings)
                     .map_err(|e| e.to_string())?
                     .pl
@@ -844,10 +850,7 @@ fn serve(stream: TcpStream, peer: String, shared: Arc<super::Shared>) {
     let _ = stream.set_nonblocking(false);
     let _ = stream.set_nodelay(true);
     let config = shared.scene().config;
-    let mut session = match Session::new(&config, Some(super::CompatLink::new(shared.clone()))) {
-        Ok(s) => s,
-        Err(e) => return tracing::error!(%peer, "SurRender session: {e}"),
-    };
+    let mut session = Session::new(&config, Some(super::CompatLink::new(shared.clone())));
     shared.stats.clients.inc();
     tracing::info!(%peer, "SurRender client connected");
     let (Ok(mut rd), mut wr) = (stream.try_clone(), stream) else {

@@ -28,7 +28,7 @@ const ENDPOINTS: [&str; 10] = [
 /// Poll clients, as in the report that opened the issue.
 const CLIENTS: usize = 16;
 /// Rounds of 100 poses alone and 100 watched.
-const ROUNDS: usize = 3;
+const ROUNDS: usize = 4;
 
 /// 100 poses spread over the two orbits (perilune, where frames cost most, included).
 fn poses() -> Vec<optistim::server::protocol::PoseMsg> {
@@ -82,11 +82,17 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
     let _ = stream(&d);
     // Rounds alone and watched, interleaved, so that the machine's drift hits both alike.
     let (mut alone, mut watched) = (Vec::new(), Vec::new());
+    // Each round's p99 (its 100 poses); compared as the median over rounds, which one round
+    // hit by the machine's own hiccup cannot decide (a CI run once had a 229 ms outlier).
+    let (mut round_alone, mut round_watched) = (Vec::new(), Vec::new());
+    let p99 = |v: &[f64]| optistim::stats::quantiles(&mut v.to_vec(), [0.99])[0];
     let stop = Arc::new(AtomicBool::new(false));
     let answered = Arc::new(AtomicU64::new(0));
     let bytes = Arc::new(AtomicU64::new(0));
     for _ in 0..ROUNDS {
-        alone.extend(stream(&d).daemon_latencies_ms);
+        let a = stream(&d).daemon_latencies_ms;
+        round_alone.push(p99(&a));
+        alone.extend(a);
         stop.store(false, Ordering::Relaxed);
         let pollers: Vec<_> = (0..CLIENTS)
             .map(|k| {
@@ -110,7 +116,9 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
             })
             .collect();
         std::thread::sleep(Duration::from_millis(300));
-        watched.extend(stream(&d).daemon_latencies_ms);
+        let w = stream(&d).daemon_latencies_ms;
+        round_watched.push(p99(&w));
+        watched.extend(w);
         stop.store(true, Ordering::Relaxed);
         for p in pollers {
             p.join().unwrap();
@@ -122,8 +130,9 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
     let made = status["views"]["images_made"].as_u64().unwrap();
     let captures = status["views"]["camera_captures"].as_u64().unwrap();
     let q = |v: &mut Vec<f64>| optistim::stats::quantiles(v, [0.5, 0.99, 1.0]);
-    let ([p50_alone, p99_alone, _], [p50_watched, p99_watched, _]) =
-        (q(&mut alone), q(&mut watched));
+    let median = |v: &[f64]| optistim::stats::quantiles(&mut v.to_vec(), [0.5])[0];
+    let (p99_alone, p99_watched) = (median(&round_alone), median(&round_watched));
+    let ([p50_alone, _, _], [p50_watched, _, _]) = (q(&mut alone), q(&mut watched));
     eprintln!(
         "p99 pose -> presented: alone {p99_alone:.1} ms, with {CLIENTS} pollers {p99_watched:.1} \
          ms (median {:.1} / {:.1}); {} requests answered ({:.0} MB); {made} images and \
@@ -152,6 +161,6 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
     );
     assert!(
         p99_watched <= 1.10 * p99_alone,
-        "p99 {p99_watched:.1} ms while watched, {p99_alone:.1} ms alone"
+        "p99 (median over rounds) {p99_watched:.1} ms while watched, {p99_alone:.1} ms alone: {round_watched:?} vs {round_alone:?}"
     );
 }

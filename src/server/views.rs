@@ -270,22 +270,29 @@ fn capture(views: &Views, job: &Job, camera: &SimulatedCamera) -> Result<Arc<Vec
     Ok(dn)
 }
 
-/// DN as they are, in a grey PNG of `bits` (16-bit above 8).
-fn codes((seq, frame_id): (u64, u64), w: usize, h: usize, dn: &[u16], bits: u32) -> Answer {
-    let png = crate::io::encode_png_gray(w, h, dn, bits)
-        .map_err(|e| e.to_string())?
-        .into();
+/// An encoded image of frame `(seq, frame_id)`, or why it could not be encoded.
+fn image(
+    (seq, frame_id): (u64, u64),
+    png: Result<Vec<u8>, png::EncodingError>,
+    scale: Option<Scale>,
+) -> Answer {
+    let png = png.map_err(|e| e.to_string())?.into();
     Ok(Arc::new(Image {
         seq,
         frame_id,
         png,
-        scale: None,
+        scale,
     }))
+}
+
+/// DN as they are, in a grey PNG of `bits` (16-bit above 8).
+fn codes(id: (u64, u64), w: usize, h: usize, dn: &[u16], bits: u32) -> Answer {
+    image(id, crate::io::encode_png_gray(w, h, dn, bits), None)
 }
 
 /// DN scaled for viewing: grey linear in DN with the highest DN below `clip_dn` white, and
 /// the pixels at or above `clip_dn` red.
-fn viewing((seq, frame_id): (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn: u32) -> Answer {
+fn viewing(id: (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn: u32) -> Answer {
     let white = dn
         .iter()
         .map(|&v| u32::from(v))
@@ -305,19 +312,12 @@ fn viewing((seq, frame_id): (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn:
             rgb.extend_from_slice(&[g, g, g]);
         }
     }
-    let png = crate::io::encode_png_rgb(w, h, &rgb)
-        .map_err(|e| e.to_string())?
-        .into();
-    Ok(Arc::new(Image {
-        seq,
-        frame_id,
-        png,
-        scale: Some(Scale {
-            white_dn: white,
-            clipped_px: clipped,
-            clip_dn,
-        }),
-    }))
+    let scale = Scale {
+        white_dn: white,
+        clipped_px: clipped,
+        clip_dn,
+    };
+    image(id, crate::io::encode_png_rgb(w, h, &rgb), Some(scale))
 }
 
 #[cfg(test)]

@@ -37,6 +37,9 @@ pub struct RenderSummary {
     /// With `fidelity = "budget"`: the settings chosen and the error predicted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<Plan>,
+    /// A mesh body's load report (what was repaired, the BVH's build time and bytes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<crate::body::mesh::MeshReport>,
 }
 
 #[derive(Debug, Serialize)]
@@ -218,6 +221,10 @@ pub fn run(
         reference: reference.map(|r| r.1),
         stimulator,
         fidelity: plan,
+        mesh: match &config.scene.body.shape {
+            crate::body::Shape::Mesh(m) => Some(m.report().clone()),
+            _ => None,
+        },
     })
 }
 

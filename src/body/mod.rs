@@ -12,10 +12,12 @@
 pub mod ellipsoid;
 pub mod horizon;
 pub mod maps;
+pub mod mesh;
 pub mod sphere;
 
 use crate::brdf::Brdf;
 pub use ellipsoid::Ellipsoid;
+pub use mesh::Mesh;
 
 use glam::DVec3;
 pub use sphere::{LitVisible, Sphere};
@@ -25,6 +27,9 @@ pub enum Shape {
     Sphere(Sphere),
     /// A triaxial ellipsoid (semi-axes along the body axes).
     Ellipsoid(Ellipsoid),
+    /// A triangle mesh (rendered by the ray caster, [`crate::raycast`]), shared between the
+    /// copies of a scene.
+    Mesh(std::sync::Arc<Mesh>),
 }
 
 impl Shape {
@@ -33,14 +38,17 @@ impl Shape {
         match self {
             Shape::Sphere(s) => s.radius_m,
             Shape::Ellipsoid(e) => e.max_axis_m(),
+            Shape::Mesh(m) => m.bounding_radius_m(),
         }
     }
 
-    /// Radius of a sphere centred on the body that the surface contains [m].
+    /// Radius of a sphere centred on the body that the surface contains [m] (none is known
+    /// for a mesh: 0).
     pub fn inner_radius_m(&self) -> f64 {
         match self {
             Shape::Sphere(s) => s.radius_m,
             Shape::Ellipsoid(e) => e.min_axis_m(),
+            Shape::Mesh(_) => 0.0,
         }
     }
 
@@ -51,12 +59,14 @@ impl Shape {
     }
 
     /// Surface point [m] and outward unit normal in the direction `dir` (unit, from the
-    /// centre), in the body frame (in any body-centred frame for a round shape).
+    /// centre), in the body frame (in any body-centred frame for a round shape); for a mesh,
+    /// the outermost point along `dir` and its facet's normal.
     #[inline(always)]
     pub fn surface(&self, dir: DVec3) -> (DVec3, DVec3) {
         match self {
             Shape::Sphere(s) => (dir * s.radius_m, dir),
             Shape::Ellipsoid(e) => e.surface(dir),
+            Shape::Mesh(m) => m.surface(dir),
         }
     }
 
@@ -66,6 +76,26 @@ impl Shape {
         match self {
             Shape::Sphere(s) => crate::geometry::ray_sphere(origin, dir, s.radius_m),
             Shape::Ellipsoid(e) => e.intersect(origin, dir),
+            Shape::Mesh(m) => m.intersect(origin, dir, f64::INFINITY).map(|h| h.t_m),
+        }
+    }
+
+    /// The first intersection of the ray `origin + t dir` (`dir` unit, `t > 0`): its distance
+    /// [m] and the shape's outward unit normal there (a facet's for a mesh).
+    #[inline]
+    pub fn intersect_normal(&self, origin: DVec3, dir: DVec3) -> Option<(f64, DVec3)> {
+        match self {
+            Shape::Mesh(m) => m
+                .intersect(origin, dir, f64::INFINITY)
+                .map(|h| (h.t_m, m.normals()[h.triangle as usize])),
+            Shape::Sphere(_) => {
+                let t = self.intersect(origin, dir)?;
+                Some((t, (origin + dir * t).normalize()))
+            }
+            Shape::Ellipsoid(_) => {
+                let t = self.intersect(origin, dir)?;
+                Some((t, self.surface((origin + dir * t).normalize()).1))
+            }
         }
     }
 
@@ -75,7 +105,7 @@ impl Shape {
     pub fn lit_visible(&self, sun_m: DVec3, camera_m: DVec3) -> Option<LitVisible> {
         match self {
             Shape::Sphere(s) => Some(LitVisible::new(s.radius_m, sun_m, camera_m)),
-            Shape::Ellipsoid(_) => None,
+            Shape::Ellipsoid(_) | Shape::Mesh(_) => None,
         }
     }
 
@@ -84,6 +114,7 @@ impl Shape {
         match self {
             Shape::Sphere(s) => p.length() < s.radius_m,
             Shape::Ellipsoid(e) => e.contains(p),
+            Shape::Mesh(m) => m.contains(p),
         }
     }
 }
@@ -123,6 +154,8 @@ impl Body {
             Shape::Ellipsoid(e) if !relief.is_some_and(|r| r.displaces()) => {
                 e.surface(dir).0.length()
             }
+            // The ray caster needs no keep-out sphere: outside the surface is enough.
+            Shape::Mesh(_) => 0.0,
             shape => rendered_radius_m(shape, relief),
         }
     }

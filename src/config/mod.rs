@@ -536,7 +536,12 @@ impl Validator<'_> {
 
     fn body(&self, b: &RawBody) -> R<Body> {
         let (shape, radius_m) =
-            match self.choice("body.shape", &b.shape, &["sphere", "ellipsoid"])? {
+            match self.choice("body.shape", &b.shape, &["sphere", "ellipsoid", "mesh"])? {
+                "mesh" => {
+                    let mesh = self.mesh(b)?;
+                    let r = mesh.bounding_radius_m();
+                    (Shape::Mesh(std::sync::Arc::new(mesh)), r)
+                }
                 "ellipsoid" => {
                     let axes = self.need(
                         "body.semi_axes_m",
@@ -838,6 +843,61 @@ impl Validator<'_> {
             );
         }
         Ok(relief)
+    }
+
+    /// A mesh body's surface (`[body.mesh]`), which carries no DEM, horizon or normal map.
+    fn mesh(&self, b: &RawBody) -> R<crate::body::Mesh> {
+        let m = self.need(
+            "body.mesh",
+            b.mesh.as_ref(),
+            "required for shape = \"mesh\": { path, units }",
+        )?;
+        for (key, given) in [
+            ("body.radius_m", b.radius_m.is_some()),
+            ("body.semi_axes_m", b.semi_axes_m.is_some()),
+            ("body.dem_map", b.dem_map.is_some()),
+            ("body.horizon_map", b.horizon_map.is_some()),
+            ("body.normal_map", b.normal_map.is_some()),
+        ] {
+            if given {
+                return self.err(key, "given", "absent for a mesh (its surface is the mesh)");
+            }
+        }
+        let metres_per_unit = match (m.units.as_deref(), m.metres_per_unit) {
+            (Some("m"), None) => 1.0,
+            (Some("km"), None) => 1000.0,
+            (None, Some(k)) => self.positive("body.mesh.metres_per_unit", k)?,
+            (Some(u), None) => return self.err("body.mesh.units", u, "m or km"),
+            _ => {
+                return self.err(
+                    "body.mesh.units",
+                    "missing or given with metres_per_unit",
+                    "one of units = \"m\" | \"km\" or metres_per_unit",
+                );
+            }
+        };
+        let rotation = match m.body_from_file_wxyz {
+            None => glam::DMat3::IDENTITY,
+            Some(q) => {
+                let q = crate::geometry::body_from_camera_wxyz(q);
+                if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
+                    return self.err(
+                        "body.mesh.body_from_file_wxyz",
+                        format!("{q:?}"),
+                        "a unit quaternion, scalar first",
+                    );
+                }
+                glam::DMat3::from_quat(q)
+            }
+        };
+        let path = self.path("body.mesh.path", &m.path)?;
+        crate::body::Mesh::load(&path, metres_per_unit, rotation).or_else(|e| {
+            self.err(
+                "body.mesh.path",
+                path.display().to_string(),
+                &format!("a readable, valid mesh ({e})"),
+            )
+        })
     }
 
     /// A map that loaded but cannot serve: `key`, its path, and why.
@@ -1282,6 +1342,21 @@ impl Validator<'_> {
         }
         if let Some(d) = r.depth {
             s.depth = d;
+        }
+        for (key, v, field) in [
+            ("render.raycast_samples", r.raycast_samples, &mut s.raycast_samples),
+            (
+                "render.raycast_edge_samples",
+                r.raycast_edge_samples,
+                &mut s.raycast_edge_samples,
+            ),
+        ] {
+            if let Some(n) = v {
+                if !(1..=64).contains(&n) {
+                    return self.err(key, n, "an integer in [1, 64]");
+                }
+                *field = n as u32;
+            }
         }
         if let Some(v) = &r.map_filter {
             use crate::render::MapFilter;

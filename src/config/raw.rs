@@ -81,6 +81,20 @@ pub struct RawBody {
     /// Whether the DEM displaces the surface (default false: it only tilts the normals).
     #[serde(default)]
     pub displacement: bool,
+    /// `shape = "mesh"`: the mesh file and its units.
+    pub mesh: Option<RawMesh>,
+}
+
+/// `[body.mesh]`: an OBJ, PLY or STL file (`docs/scene.md`, "Meshes").
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMesh {
+    pub path: String,
+    /// The file's length unit: `m` or `km`, or `metres_per_unit` instead.
+    pub units: Option<String>,
+    pub metres_per_unit: Option<f64>,
+    /// Rotation from the file's axes to the body frame, scalar first (default: none).
+    pub body_from_file_wxyz: Option<[f64; 4]>,
 }
 
 /// A texture map and its encoding (`docs/scene.md`, `body::maps::Encoding`).
@@ -218,6 +232,9 @@ pub struct RawRender {
     pub depth: Option<bool>,
     pub self_shadowing: Option<String>,
     pub map_filter: Option<String>,
+    /// Mesh bodies: rays per pixel side, everywhere and at edges.
+    pub raycast_samples: Option<i64>,
+    pub raycast_edge_samples: Option<i64>,
     /// `fixed` (default: these settings for every frame) or `budget` (per frame, the
     /// cheapest settings predicted to meet `[render.budget]`).
     pub fidelity: Option<String>,

@@ -10,6 +10,8 @@
 //! Rotations are named `a_from_b`: `v_a = a_from_b * v_b`. All lengths in metres, angles in
 //! radians.
 
+pub mod bvh;
+
 use glam::{DMat3, DQuat, DVec3};
 
 /// Builds the body-from-camera rotation from a scalar-first Hamilton quaternion

@@ -20,6 +20,7 @@
 //! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
 
 pub mod reference;
+pub mod sampled;
 mod terrain;
 
 use terrain::Terrain;
@@ -174,10 +175,8 @@ impl<'a> Tracer<'a> {
     /// a frame shows ([`crate::fidelity::budget`]).
     pub fn shape_at(&self, u: f64, v: f64) -> Option<(DVec3, DVec3)> {
         let (dir, _, _) = self.line_of_sight(u, v);
-        let shape = &self.scene.body.shape;
-        let t = shape.intersect(self.camera_m, dir)?;
-        let p = self.camera_m + dir * t;
-        Some((p, surface_normal(shape, p)))
+        let (t, normal) = self.scene.body.shape.intersect_normal(self.camera_m, dir)?;
+        Some((self.camera_m + dir * t, normal))
     }
 
     /// Casts the line of sight through pixel position `(u, v)`.
@@ -189,16 +188,20 @@ impl<'a> Tracer<'a> {
         };
         let (dir, cos_eps, solid) = self.line_of_sight(u, v);
         let body = &self.scene.body;
-        let t = match &self.terrain {
-            Some(terrain) if self.displaced => terrain.intersect(self.camera_m, dir, 0.0),
-            _ => body.shape.intersect(self.camera_m, dir),
+        let met = match &self.terrain {
+            Some(terrain) if self.displaced => terrain
+                .intersect(self.camera_m, dir, 0.0)
+                .map(|t| (t, DVec3::ZERO)),
+            _ => body.shape.intersect_normal(self.camera_m, dir),
         };
-        let Some(t) = t else { return miss };
+        let Some((t, shape_normal)) = met else {
+            return miss;
+        };
         let p = self.camera_m + dir * t;
         let up = p.normalize();
         let normal = match &body.relief {
             Some(r) => r.at(up, false).normal,
-            None => surface_normal(&body.shape, p),
+            None => shape_normal,
         };
         let to_sun = self.sun_m - p;
         let d_sun2 = to_sun.length_squared();
@@ -213,6 +216,12 @@ impl<'a> Tracer<'a> {
         }
         if let Some(terrain) = &self.terrain
             && terrain.shadowed(up, s, self.displaced)
+        {
+            return hit(0.0);
+        }
+        // A mesh shadows itself (SLIM Sec. 3: a ray from the facet to the Sun).
+        if let Shape::Mesh(m) = &body.shape
+            && m.shadows(p, normal, s)
         {
             return hit(0.0);
         }
@@ -232,12 +241,4 @@ impl<'a> Tracer<'a> {
 #[inline]
 fn angle(a: DVec3, b: DVec3) -> f64 {
     a.cross(b).length().atan2(a.dot(b))
-}
-
-/// The outward normal of the undisplaced shape at its surface point `p` [m].
-fn surface_normal(shape: &Shape, p: DVec3) -> DVec3 {
-    match shape {
-        Shape::Sphere(_) => p.normalize(),
-        Shape::Ellipsoid(_) => shape.surface(p.normalize()).1,
-    }
 }

@@ -163,6 +163,12 @@ impl Renderer {
     ) -> Result<Frame, RenderError> {
         check_pose(scene, pose)?;
         check_settings(settings)?;
+        // Meshes have no quadrangles: the ray caster renders them, into the same frame.
+        if let crate::body::Shape::Mesh(_) = scene.body.shape {
+            return self
+                .pool
+                .install(|| crate::raycast::sampled::render(scene, pose, settings));
+        }
         let method = Method::resolve(settings.integration, &scene.body)?;
         let threads = self.threads;
         let buf = &mut self.buf;
@@ -218,6 +224,14 @@ fn check_settings(s: &Settings) -> Result<(), RenderError> {
             s.boundary_nodes.to_string(),
             "an integer in [1, 32]",
         );
+    }
+    for (field, n) in [
+        ("raycast_samples", s.raycast_samples),
+        ("raycast_edge_samples", s.raycast_edge_samples),
+    ] {
+        if n == 0 || n > 64 {
+            return bad(field, n.to_string(), "an integer in [1, 64]");
+        }
     }
     if s.supersampling == 0 || s.supersampling > 16 {
         return bad(

@@ -125,6 +125,10 @@ pub struct Settings {
     pub self_shadowing: SelfShadowing,
     /// How quadrangles read the albedo map.
     pub map_filter: MapFilter,
+    /// Mesh bodies ([`crate::raycast::sampled`]): rays per pixel side everywhere.
+    pub raycast_samples: u32,
+    /// Mesh bodies: rays per pixel side in pixels at the limb and at the edges of the light.
+    pub raycast_edge_samples: u32,
 }
 
 impl Default for Settings {
@@ -154,6 +158,8 @@ impl Default for Settings {
             depth: false,
             self_shadowing: SelfShadowing::Off,
             map_filter: MapFilter::Area,
+            raycast_samples: 2,
+            raycast_edge_samples: 8,
         }
     }
 }

@@ -1,0 +1,143 @@
+//! The ray caster's frame, what mesh bodies render with (SLIM Sec. 3: rays from the camera,
+//! facet by facet, shadow rays to the Sun): each pixel's `(P/L)` is the mean of a stratified
+//! `n x n` grid of ray casts over its footprint ([`super::Tracer::cast`], per px^2, so the
+//! mean is the footprint's integral: energy-conserving at any `n`), with
+//! `n = render.raycast_samples`; pixels where the light changes, the limb or the edge of the
+//! light and of shadows, are cast again with `render.raycast_edge_samples` per side.
+//!
+//! Which pixels are edges: a pixel whose own rays, or its eight neighbours' rays, fall in more
+//! than one class (missing the body, meeting it unlit or shadowed, meeting it lit). An edge
+//! that passes between the rays of neighbouring pixels is found this way; one that enters and
+//! leaves a pixel interior to a region of one class between its rays is not (a shadow
+//! narrower than `1/n` px), which `raycast_samples` bounds.
+//!
+//! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
+//! the same image, bit for bit, whatever the thread count.
+
+use super::{Coverage, Tracer};
+use crate::render::{Frame, FrameStats, RenderError, Settings, StageTimings};
+use crate::scene::{Pose, Scene};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Classes of rays, as bits of a pixel's mask.
+const MISS: u8 = 1;
+const DARK: u8 = 2;
+const LIT: u8 = 4;
+
+/// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
+/// the rays that met the body [m] (NaN for none), the classes met, the rays cast.
+fn cast_pixel(tracer: &Tracer, u0: f64, v0: f64, n: u32) -> (f64, f64, u8, u64) {
+    if tracer.coverage(u0, v0, 1.0) == Coverage::Empty {
+        return (0.0, f64::NAN, MISS, 0);
+    }
+    let step = 1.0 / n as f64;
+    let (mut sum, mut range, mut hits, mut mask) = (0.0, 0.0, 0u32, 0u8);
+    for j in 0..n {
+        let v = v0 + (j as f64 + 0.5) * step;
+        for i in 0..n {
+            let h = tracer.cast(u0 + (i as f64 + 0.5) * step, v);
+            if h.range_m.is_nan() {
+                mask |= MISS;
+                continue;
+            }
+            hits += 1;
+            range += h.range_m;
+            if h.pl_per_px2 > 0.0 {
+                mask |= LIT;
+                sum += h.pl_per_px2;
+            } else {
+                mask |= DARK;
+            }
+        }
+    }
+    let rays = (n * n) as u64;
+    let depth = if hits > 0 {
+        range / hits as f64
+    } else {
+        f64::NAN
+    };
+    (sum / rays as f64, depth, mask, rays)
+}
+
+/// Renders the `(P/L)` image of `scene` from `pose` by sampled ray casting, in the calling
+/// thread pool.
+pub fn render(scene: &Scene, pose: &Pose, settings: &Settings) -> Result<Frame, RenderError> {
+    let t0 = Instant::now();
+    let intr = &scene.camera.intrinsics;
+    let (w, h) = (intr.width_px as usize, intr.height_px as usize);
+    let tracer = Tracer::new(scene, pose);
+    let n = settings.raycast_samples;
+    let first: Vec<(f64, f64, u8, u64)> = (0..w * h)
+        .into_par_iter()
+        .with_min_len(64)
+        .map(|p| cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, n))
+        .collect();
+    let t_first = t0.elapsed();
+    let mixed = |p: usize| {
+        let (i, j) = ((p % w) as i64, (p / w) as i64);
+        let mut mask = 0u8;
+        for dj in -1..=1 {
+            for di in -1..=1 {
+                let (x, y) = (i + di, j + dj);
+                if x >= 0 && y >= 0 && x < w as i64 && y < h as i64 {
+                    mask |= first[y as usize * w + x as usize].2;
+                }
+            }
+        }
+        mask.count_ones() > 1
+    };
+    let edge_n = settings.raycast_edge_samples.max(n);
+    let refined: Vec<(f64, f64, u64, bool)> = (0..w * h)
+        .into_par_iter()
+        .with_min_len(64)
+        .map(|p| {
+            if edge_n > n && mixed(p) {
+                let (pl, d, _, rays) = cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, edge_n);
+                (pl, d, rays, true)
+            } else {
+                (first[p].0, first[p].1, 0, false)
+            }
+        })
+        .collect();
+    let pl: Vec<f64> = refined.iter().map(|r| r.0).collect();
+    let total: f64 = pl.iter().sum();
+    if !total.is_finite() {
+        return Err(RenderError::NonFinite {
+            stage: "ray casting",
+            value: total,
+        });
+    }
+    let rays: u64 = first.iter().map(|f| f.3).sum::<u64>() + refined.iter().map(|r| r.2).sum::<u64>();
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    let stats = FrameStats {
+        phase_deg: pose
+            .sun_position_m
+            .normalize()
+            .dot(pose.camera_position_m.normalize())
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees(),
+        points_sampled: w * h,
+        points_kept: refined.iter().filter(|r| r.3).count(),
+        surface_samples: rays as usize,
+        covered_px: pl.iter().filter(|&&x| x > 0.0).count() as f64,
+        total_pl_points: total,
+        total_pl_image: total,
+        timings_ms: StageTimings {
+            integration: t_first.as_secs_f64() * 1e3,
+            total: ms,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    Ok(Frame {
+        width: w,
+        height: h,
+        depth_m: settings
+            .depth
+            .then(|| refined.iter().map(|r| r.1).collect()),
+        pl,
+        stats,
+    })
+}

@@ -1,0 +1,427 @@
+//! Mesh bodies (issue 16): the ray caster's frame of a geodesic mesh sphere converges on the
+//! quadrangle renderer's sphere; the BVH's hits and shadows equal a brute-force search over
+//! every facet; every shape model of `../shared/shapes/` loads and renders; the mesh files
+//! (OBJ, PLY ASCII and binary, STL) load alike, and bad ones are refused with what is wrong.
+
+mod common;
+use common::*;
+use glam::DVec3;
+use optistim::body::mesh::{Mesh, geodesic_sphere};
+use optistim::body::Shape;
+use optistim::config::Config;
+use optistim::render::{Renderer, Settings};
+use std::sync::Arc;
+
+const SHAPES: &str = "../shared/shapes";
+
+/// A Lambert sphere at 3 radii, phase 60 deg, filling about half of a 512 x 512 frame.
+fn sphere_scene() -> Config {
+    let d = 3.0 * R_MOON;
+    let phase = 60f64.to_radians();
+    SceneSpec {
+        resolution: [512, 512],
+        focal_m: 0.006,
+        camera_m: [d * phase.cos(), d * phase.sin(), 0.0],
+        sun_m: [AU, 0.0, 0.0],
+        ..Default::default()
+    }
+    .config()
+}
+
+fn with_mesh(cfg: &Config, mesh: Mesh) -> Config {
+    let mut c = cfg.clone();
+    c.scene.body.shape = Shape::Mesh(Arc::new(mesh));
+    c
+}
+
+fn render(cfg: &Config, settings: &Settings) -> Vec<f64> {
+    Renderer::new(0)
+        .unwrap()
+        .render(&cfg.scene, &cfg.pose, settings)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .pl
+}
+
+#[test]
+fn a_mesh_sphere_converges_on_the_quadrangle_sphere() {
+    let cfg = sphere_scene();
+    let truth = render(&cfg, &Settings::high_accuracy());
+    let total: f64 = truth.iter().sum();
+    let peak = truth.iter().cloned().fold(0.0, f64::max);
+    let mut errors = Vec::new();
+    // 2e4, 1e5 and 5e5 facets.
+    for n in [32, 71, 158] {
+        let (v, f) = geodesic_sphere(R_MOON, n);
+        let mesh = Mesh::new(v, f).unwrap();
+        let facets = mesh.report().facets;
+        let img = render(&with_mesh(&cfg, mesh), &cfg.settings);
+        let err_total = img.iter().sum::<f64>() / total - 1.0;
+        // Lit pixels wholly inside the disk and away from the terminator: the 4-neighbours lit.
+        let w = 512;
+        let mut rel: Vec<f64> = (w + 1..truth.len() - w - 1)
+            .filter(|&p| {
+                [p, p - 1, p + 1, p - w, p + w]
+                    .iter()
+                    .all(|&q| truth[q] > 0.05 * peak && img[q] > 0.0)
+            })
+            .map(|p| (img[p] / truth[p] - 1.0).abs())
+            .collect();
+        let [median, p99] = optistim::stats::quantiles(&mut rel, [0.5, 0.99]);
+        eprintln!(
+            "{facets} facets: total {err_total:+.2e}, per lit pixel median {median:.2e}, p99 \
+             {p99:.2e} ({} px)",
+            rel.len()
+        );
+        assert!(rel.len() > 30_000);
+        errors.push((facets, err_total.abs(), median));
+    }
+    // 1e5 facets: total within 0.5 %, median per lit pixel within 1 %.
+    assert!(errors[1].1 < 5e-3, "{errors:?}");
+    assert!(errors[1].2 < 1e-2, "{errors:?}");
+    // Converging as the mesh is refined.
+    assert!(
+        errors[0].1 > errors[1].1 && errors[1].1 > errors[2].1,
+        "{errors:?}"
+    );
+    assert!(
+        errors[0].2 > errors[1].2 && errors[1].2 > errors[2].2,
+        "{errors:?}"
+    );
+}
+
+/// Möller-Trumbore in f64 over every facet: the first hit's distance and facet.
+fn brute_force(mesh: &Mesh, o: DVec3, d: DVec3) -> Option<(f64, usize)> {
+    let v = mesh.vertices_m();
+    let mut best: Option<(f64, usize)> = None;
+    for (i, f) in mesh.facets().iter().enumerate() {
+        let [a, b, c] = f.map(|k| v[k as usize]);
+        let (e1, e2) = (b - a, c - a);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det.abs() < 1e-300 {
+            continue;
+        }
+        let s = o - a;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let w = d.dot(q) / det;
+        let t = e2.dot(q) / det;
+        if u >= 0.0 && w >= 0.0 && u + w <= 1.0 && t > 0.0 && best.is_none_or(|(bt, _)| t < bt) {
+            best = Some((t, i));
+        }
+    }
+    best
+}
+
+#[test]
+fn hits_and_shadows_equal_a_brute_force_search_on_itokawa() {
+    // Itokawa is about 535 x 294 x 209 m: the camera at 1.3 km, a low Sun (phase 75 deg) so
+    // that the body's concavities cast shadows.
+    let d = 1300.0;
+    let r = 300.0;
+    let cfg = shape_scene(
+        &SceneSpec {
+            resolution: [96, 96],
+            focal_m: 0.001,
+            camera_m: [d * 0.3, d * 0.2, d * 0.93],
+            sun_m: [AU * 0.96, AU * 0.0, AU * 0.28],
+            ..Default::default()
+        },
+        "itokawa_8.obj",
+    );
+    let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
+        unreachable!()
+    };
+    let tracer = optistim::raycast::Tracer::new(&cfg.scene, &cfg.pose);
+    let cam = cfg.pose.camera_position_m;
+    let sun = cfg.pose.sun_position_m;
+    let intr = &cfg.scene.camera.intrinsics;
+    let q = glam::DMat3::from_quat(cfg.pose.body_from_camera);
+    let (mut hits, mut shadowed, mut lit, mut disagree) = (0, 0, 0, 0);
+    for j in 0..96 {
+        for i in 0..96 {
+            let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
+            let (x, y) = intr.unproject(u, v);
+            let dir = (q * DVec3::new(x, y, 1.0)).normalize();
+            let got = tracer.cast(u, v);
+            let want = brute_force(mesh, cam, dir);
+            match want {
+                None => assert!(got.range_m.is_nan(), "pixel {i},{j}: hit {got:?}"),
+                Some((t, f)) => {
+                    hits += 1;
+                    assert!((got.range_m - t).abs() < 1e-5 * t, "{i},{j}: {got:?} vs {t}");
+                    let p = cam + dir * t;
+                    let n = mesh.normals()[f];
+                    let s = (sun - p).normalize();
+                    let facing = n.dot(s) > 0.0 && n.dot(-dir) > 0.0;
+                    let blocked = facing
+                        && brute_force(mesh, p + n * (1e-6 * r), s).is_some();
+                    shadowed += blocked as usize;
+                    let want_lit = facing && !blocked;
+                    lit += want_lit as usize;
+                    if want_lit != (got.pl_per_px2 > 0.0) {
+                        disagree += 1;
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("{hits} hits, {lit} lit, {shadowed} in cast shadows, {disagree} disagree");
+    assert!(hits > 1500 && shadowed > 20, "the scene shows cast shadows");
+    assert_eq!(disagree, 0);
+}
+
+#[test]
+fn every_shared_shape_loads_and_renders() {
+    let mut names: Vec<_> = std::fs::read_dir(SHAPES)
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "obj"))
+        .collect();
+    names.sort();
+    assert!(names.len() >= 6, "{names:?}");
+    for path in names {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        let probe = Mesh::load(&path, 1000.0, glam::DMat3::IDENTITY)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let d = 6.0 * probe.bounding_radius_m();
+        let cfg = shape_scene(
+            &SceneSpec {
+                resolution: [128, 128],
+                focal_m: 0.004,
+                camera_m: [d * 0.5, d * 0.866, 0.0],
+                ..Default::default()
+            },
+            name,
+        );
+        let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
+            unreachable!()
+        };
+        let rep = mesh.report().clone();
+        let r = mesh.bounding_radius_m();
+        let img = render(&cfg, &cfg.settings);
+        let lit = img.iter().filter(|&&x| x > 0.0).count();
+        eprintln!(
+            "{}: {} facets, {} open edges, {} flipped, {} dropped; radius {:.0} m; {lit} lit px",
+            path.display(),
+            rep.facets,
+            rep.open_edges,
+            rep.flipped,
+            rep.dropped_degenerate,
+            r
+        );
+        assert!(lit > 200, "{}: {lit} lit pixels", path.display());
+        assert!(img.iter().all(|x| x.is_finite() && *x >= 0.0));
+    }
+}
+
+/// A unit cube (8 vertices, 12 facets, outward).
+fn cube() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+    let v = vec![
+        [-1., -1., -1.],
+        [1., -1., -1.],
+        [1., 1., -1.],
+        [-1., 1., -1.],
+        [-1., -1., 1.],
+        [1., -1., 1.],
+        [1., 1., 1.],
+        [-1., 1., 1.],
+    ];
+    let f = vec![
+        [0, 2, 1],
+        [0, 3, 2],
+        [4, 5, 6],
+        [4, 6, 7],
+        [0, 1, 5],
+        [0, 5, 4],
+        [2, 3, 7],
+        [2, 7, 6],
+        [1, 2, 6],
+        [1, 6, 5],
+        [0, 4, 7],
+        [0, 7, 3],
+    ];
+    (v, f)
+}
+
+fn write_formats(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let (v, f) = cube();
+    let mut obj = String::new();
+    for p in &v {
+        obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    for t in &f {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let mut ply = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+         property float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        v.len(),
+        f.len()
+    );
+    for p in &v {
+        ply += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    for t in &f {
+        ply += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
+    }
+    let mut bin = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty double x\n\
+         property double y\nproperty double z\nelement face {}\n\
+         property list uchar uint vertex_indices\nend_header\n",
+        v.len(),
+        f.len()
+    )
+    .into_bytes();
+    for p in &v {
+        for c in p {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for t in &f {
+        bin.push(3);
+        for k in t {
+            bin.extend_from_slice(&k.to_le_bytes());
+        }
+    }
+    let mut stl = String::from("solid cube\n");
+    for t in &f {
+        stl += "facet normal 0 0 0\nouter loop\n";
+        for &k in t {
+            let p = v[k as usize];
+            stl += &format!("vertex {} {} {}\n", p[0], p[1], p[2]);
+        }
+        stl += "endloop\nendfacet\n";
+    }
+    stl += "endsolid cube\n";
+    let files = [
+        ("cube.obj", obj.into_bytes()),
+        ("cube_ascii.ply", ply.into_bytes()),
+        ("cube_binary.ply", bin),
+        ("cube.stl", stl.into_bytes()),
+    ];
+    files
+        .into_iter()
+        .map(|(name, bytes)| {
+            let p = dir.join(name);
+            std::fs::write(&p, bytes).unwrap();
+            p
+        })
+        .collect()
+}
+
+/// The scene text of `spec` with the mesh file `path` (in km) as its body.
+fn mesh_toml(spec: &SceneSpec, path: &str) -> String {
+    spec.toml().replace(
+        &format!("radius_m = {R_MOON}\n"),
+        &format!("shape = \"mesh\"\nmesh = {{ path = \"{path}\", units = \"km\" }}\n"),
+    )
+}
+
+/// A small scene of the mesh file `path` (in km) a few kilometres away.
+fn mesh_scene(path: &str) -> String {
+    mesh_toml(
+        &SceneSpec {
+            camera_m: [6000.0, 2000.0, 1500.0],
+            resolution: [64, 64],
+            focal_m: 0.004,
+            ..Default::default()
+        },
+        path,
+    )
+}
+
+/// The scene of `spec` with the shared shape `name`.
+fn shape_scene(spec: &SceneSpec, name: &str) -> Config {
+    let path = std::fs::canonicalize(format!("{SHAPES}/{name}")).unwrap();
+    let text = mesh_toml(spec, path.to_str().unwrap());
+    optistim::config::parse(&text, "<test>").unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn obj_ply_and_stl_load_alike_and_render_the_same_image() {
+    let dir = tempdir("mesh_formats");
+    let mut images = Vec::new();
+    for p in write_formats(&dir) {
+        let text = mesh_scene(p.file_name().unwrap().to_str().unwrap());
+        let file = dir.join("scene.toml");
+        let cfg = optistim::config::parse(&text, file.to_str().unwrap())
+            .unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        let Shape::Mesh(m) = &cfg.scene.body.shape else {
+            panic!("not a mesh")
+        };
+        assert_eq!(m.report().facets, 12, "{}", p.display());
+        assert!((m.volume_m3() - 8e9).abs() < 1e-3, "{}", p.display());
+        images.push(render(&cfg, &cfg.settings));
+    }
+    assert!(images[0].iter().any(|&x| x > 0.0));
+    for img in &images[1..] {
+        assert_eq!(img, &images[0]);
+    }
+}
+
+#[test]
+fn bad_mesh_files_are_refused_with_what_is_wrong() {
+    let dir = tempdir("mesh_bad");
+    let (v, f) = cube();
+    let obj = |v: &[[f64; 3]], f: &[[u32; 3]]| {
+        let mut s = String::new();
+        for p in v {
+            s += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+        }
+        for t in f {
+            s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+        }
+        s
+    };
+    let mut nan = v.clone();
+    nan[2][1] = f64::NAN;
+    let mut third = f.clone();
+    third.push([0, 1, 6]);
+    let mut v9 = v.clone();
+    v9.push([3.0, 3.0, 3.0]);
+    third.push([0, 1, 8]);
+    let cases = [
+        ("empty.obj", String::new(), "no surface"),
+        ("nan.obj", obj(&nan, &f), "is not finite"),
+        ("nonmanifold.obj", obj(&v9, &third), "non-manifold"),
+        ("garbage.ply", "ply\nthis is not a header\n".into(), "PLY"),
+        ("garbage.stl", "solid x\nfacet nonsense\n".into(), "STL"),
+        ("cube.off", obj(&v, &f), ".obj, .ply or .stl"),
+    ];
+    for (name, text, want) in cases {
+        std::fs::write(dir.join(name), text).unwrap();
+        let scene = mesh_scene(name);
+        let file = dir.join("scene.toml");
+        match optistim::config::parse(&scene, file.to_str().unwrap()) {
+            Err(e) => {
+                let e = e.to_string();
+                assert!(e.contains("body.mesh.path") && e.contains(want), "{name}: {e}");
+            }
+            Ok(_) => panic!("{name}: accepted"),
+        }
+    }
+    // A mesh body refuses a radius and a DEM, and needs its units.
+    let dir_s = dir.join("scene.toml");
+    std::fs::write(dir.join("cube.obj"), obj(&v, &f)).unwrap();
+    let ok = mesh_scene("cube.obj");
+    for (text, key) in [
+        (ok.replace("units = \"km\"", ""), "body.mesh.units"),
+        (ok.replace("units = \"km\"", "units = \"furlong\""), "body.mesh.units"),
+        (
+            ok.replace("shape = \"mesh\"", "shape = \"mesh\"\nradius_m = 5.0"),
+            "body.radius_m",
+        ),
+    ] {
+        let (k, _) = refusal(&text, dir_s.to_str().unwrap());
+        assert_eq!(k, key);
+    }
+}
+
+/// A fresh folder under the temporary directory, for this process.
+fn tempdir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("optistim-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}

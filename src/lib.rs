@@ -76,6 +76,7 @@ pub mod display;
 pub mod fidelity;
 pub mod geometry;
 pub mod io;
+pub mod irradiance;
 pub mod pipeline;
 pub mod radiometry;
 pub mod raycast;

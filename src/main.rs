@@ -75,6 +75,23 @@ enum Command {
         #[arg(long, default_value = "config/error_model.toml")]
         out: PathBuf,
     },
+    /// The surface irradiance of a mesh body (SLIM Secs. 6.1-6.2, 9.3): per facet, direct
+    /// (with the body's own shadows) and scattered between facets (Lambertian radiosity,
+    /// `--orders` Jacobi iterations); writes DIR/irradiance.csv and DIR/irradiance.ply (face
+    /// properties, W/m^2); with `--steps N`, also the mean, min, max and lit fraction over one
+    /// rotation about the body's +Z in N steps.
+    Irradiance {
+        /// Scene TOML with a mesh body (e.g. config/bennu.toml); its pose gives the Sun.
+        scene: PathBuf,
+        #[arg(long, default_value = "out/irradiance")]
+        out: PathBuf,
+        /// Orders of scattering (0: direct light only).
+        #[arg(long, default_value_t = 3)]
+        orders: u32,
+        /// Rotation steps for the statistics (0: none).
+        #[arg(long, default_value_t = 0)]
+        steps: u32,
+    },
     /// The stability suite: the renderer where methods fail (extreme ranges and phases, the
     /// body cut or behind the camera, degenerate poses, broken maps, DEM cliffs, extreme Hapke,
     /// a 10:1 ellipsoid, 1 x 1 and 8192 x 8192 images), each case time-limited; writes the
@@ -226,6 +243,16 @@ fn run() -> anyhow::Result<()> {
                 app::render::Method::Quadrangle
             };
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
+            println!("{}", serde_json::to_string(&summary)?);
+        }
+        Command::Irradiance {
+            scene,
+            out,
+            orders,
+            steps,
+        } => {
+            let cfg = config::load(&scene)?;
+            let summary = app::irradiance::run(&cfg, &out, orders, steps)?;
             println!("{}", serde_json::to_string(&summary)?);
         }
         Command::Stability { out, limit_s } => {

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod bench_endpoints;
 pub mod calibrate;
 pub mod compare;
+pub mod irradiance;
 pub mod render;
 pub mod replay;
 pub mod show;
@@ -29,6 +30,8 @@ pub enum AppError {
     Display(#[from] crate::display::DisplayError),
     #[error("compare: {0}")]
     Compare(String),
+    #[error("irradiance: {0}")]
+    Irradiance(String),
     #[error("stability: {0}")]
     Stability(String),
     #[error("sweep: {0}")]

@@ -258,6 +258,12 @@ impl Mesh {
             .occluded(p_m + normal * (side * lift), dir, f64::INFINITY)
     }
 
+    /// Whether a facet lies on the ray `from_m + t dir` (`dir` unit) with `0 < t < t_max_m`.
+    #[inline]
+    pub fn occluded_between(&self, from_m: DVec3, dir: DVec3, t_max_m: f64) -> bool {
+        self.bvh.occluded(from_m, dir, t_max_m)
+    }
+
     /// Whether the point `p_m` lies inside the closed surface (ray parity along a fixed
     /// direction no mesh edge of a generic model lies along).
     pub fn contains(&self, p_m: DVec3) -> bool {

@@ -20,6 +20,9 @@ use crate::scene::{Pose, Scene};
 use rayon::prelude::*;
 use std::time::Instant;
 
+/// Side of the square tiles [px] whose coverage of the body is tested before any ray.
+const TILE: usize = 8;
+
 /// Classes of rays, as bits of a pixel's mask.
 const MISS: u8 = 1;
 const DARK: u8 = 2;
@@ -28,9 +31,6 @@ const LIT: u8 = 4;
 /// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
 /// the rays that met the body [m] (NaN for none), the classes met, the rays cast.
 fn cast_pixel(tracer: &Tracer, u0: f64, v0: f64, n: u32) -> (f64, f64, u8, u64) {
-    if tracer.coverage(u0, v0, 1.0) == Coverage::Empty {
-        return (0.0, f64::NAN, MISS, 0);
-    }
     let step = 1.0 / n as f64;
     let (mut sum, mut range, mut hits, mut mask) = (0.0, 0.0, 0u32, 0u8);
     for j in 0..n {
@@ -68,11 +68,28 @@ pub fn render(scene: &Scene, pose: &Pose, settings: &Settings) -> Result<Frame, 
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
     let tracer = Tracer::new(scene, pose);
     let n = settings.raycast_samples;
-    let first: Vec<(f64, f64, u8, u64)> = (0..w * h)
+    // Bands of TILE rows, in tiles of TILE x TILE pixels: a tile whose lines of sight all miss
+    // the bounding sphere casts nothing.
+    let bands: Vec<Vec<(f64, f64, u8, u64)>> = (0..h.div_ceil(TILE))
         .into_par_iter()
-        .with_min_len(64)
-        .map(|p| cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, n))
+        .map(|band| {
+            let rows = TILE.min(h - band * TILE);
+            let mut out = vec![(0.0, f64::NAN, MISS, 0); rows * w];
+            for tile in 0..w.div_ceil(TILE) {
+                let (u0, v0) = (tile * TILE, band * TILE);
+                if tracer.coverage(u0 as f64, v0 as f64, TILE as f64) == Coverage::Empty {
+                    continue;
+                }
+                for j in 0..rows {
+                    for i in u0..(u0 + TILE).min(w) {
+                        out[j * w + i] = cast_pixel(&tracer, i as f64, (v0 + j) as f64, n);
+                    }
+                }
+            }
+            out
+        })
         .collect();
+    let first: Vec<(f64, f64, u8, u64)> = bands.into_iter().flatten().collect();
     let t_first = t0.elapsed();
     let mixed = |p: usize| {
         let (i, j) = ((p % w) as i64, (p / w) as i64);

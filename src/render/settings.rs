@@ -158,8 +158,8 @@ impl Default for Settings {
             depth: false,
             self_shadowing: SelfShadowing::Off,
             map_filter: MapFilter::Area,
-            raycast_samples: 2,
-            raycast_edge_samples: 8,
+            raycast_samples: 1,
+            raycast_edge_samples: 4,
         }
     }
 }

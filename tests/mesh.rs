@@ -425,3 +425,80 @@ fn tempdir(name: &str) -> std::path::PathBuf {
     std::fs::create_dir_all(&d).unwrap();
     d
 }
+
+/// The inside of a sphere of `radius_m` below its equator, normals inward: a spherical bowl,
+/// written as OBJ (metres) under `dir`.
+fn bowl_obj(dir: &std::path::Path, radius_m: f64) -> std::path::PathBuf {
+    let (v, f) = geodesic_sphere(radius_m, 16);
+    let mut s = String::new();
+    for p in &v {
+        s += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in f {
+        if t.iter().map(|&k| v[k as usize].z).sum::<f64>() < 0.0 {
+            s += &format!("f {} {} {}\n", t[0] + 1, t[2] + 1, t[1] + 1);
+        }
+    }
+    let path = dir.join("bowl.obj");
+    std::fs::write(&path, s).unwrap();
+    path
+}
+
+#[test]
+fn scattered_light_enters_the_image_with_the_power_the_facets_reflect() {
+    // A bowl of 500 m seen from 50 km straight above (every facet in view), lit from 40 deg
+    // above its rim (part of it in the rim's shadow), one order of scattering.
+    let dir = tempdir("mesh_bowl");
+    let path = bowl_obj(&dir, 500.0);
+    let elev = 40f64.to_radians();
+    let spec = SceneSpec {
+        resolution: [256, 256],
+        focal_m: 0.0352,
+        camera_m: [0.0, 0.0, 5e4],
+        sun_m: [AU * elev.cos(), 0.0, AU * elev.sin()],
+        ..Default::default()
+    };
+    let text = spec.toml().replace(
+        &format!("radius_m = {R_MOON}\n"),
+        &format!(
+            "shape = \"mesh\"\nmesh = {{ path = \"{}\", units = \"m\" }}\n",
+            path.display()
+        ),
+    );
+    let cfg = optistim::config::parse(&text, "<test>").unwrap_or_else(|e| panic!("{e}"));
+    let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
+        unreachable!()
+    };
+    let mut once = cfg.settings.clone();
+    once.scattering_orders = 1;
+    let direct_img = render(&cfg, &cfg.settings);
+    let with = render(&cfg, &once);
+    let got: f64 = with.iter().sum::<f64>() - direct_img.iter().sum::<f64>();
+    // What the facets reflect towards the camera: (rho / pi) R_i (A_sun / d0^2) A_i mu_i A_cam
+    // / d_i^2, with R_i the once-scattered irradiance of each facet.
+    let rho = cfg.scene.body.brdf.albedo(optistim::brdf::AlbedoType::Bond);
+    let ff = optistim::irradiance::FormFactors::new(mesh);
+    let e = optistim::irradiance::direct(mesh, cfg.pose.sun_position_m);
+    let r = optistim::irradiance::scattered(&ff, &e, rho, 1);
+    let cam = cfg.pose.camera_position_m;
+    let k = cfg.scene.sun.area_m2() / cfg.pose.sun_position_m.length_squared()
+        * cfg.scene.camera.intrinsics.aperture_area_m2();
+    let want: f64 = (0..r.len())
+        .map(|i| {
+            let to_cam = cam - mesh.centroids_m()[i];
+            let d2 = to_cam.length_squared();
+            let mu = mesh.normals()[i].dot(to_cam / d2.sqrt()).max(0.0);
+            rho / std::f64::consts::PI * r[i] * k * mesh.areas_m2()[i] * mu / d2
+        })
+        .sum();
+    eprintln!(
+        "scattered light in the image {got:.4e}, reflected by the facets {want:.4e}; direct {:.4e}",
+        direct_img.iter().sum::<f64>()
+    );
+    assert!(want > 0.0 && (got / want - 1.0).abs() < 0.01, "{got} vs {want}");
+    // Shadowed facets now show: pixels dark in direct light are lit by the bowl.
+    let shadowed_lit = (0..with.len())
+        .filter(|&p| direct_img[p] == 0.0 && with[p] > 0.0)
+        .count();
+    assert!(shadowed_lit > 500, "{shadowed_lit}");
+}

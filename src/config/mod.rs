@@ -1358,6 +1358,12 @@ impl Validator<'_> {
                 *field = n as u32;
             }
         }
+        if let Some(k) = r.scattering_orders {
+            if !(0..=20).contains(&k) {
+                return self.err("render.scattering_orders", k, "an integer in [0, 20]");
+            }
+            s.scattering_orders = k as u32;
+        }
         if let Some(v) = &r.map_filter {
             use crate::render::MapFilter;
             s.map_filter = self.pick(

@@ -53,6 +53,8 @@ pub struct Tracer<'a> {
     to_centre: DVec3,
     outer_rad: f64,
     inner_rad: f64,
+    /// A mesh's scattered irradiance per facet and `rho / pi` ([`Tracer::with_scattered`]).
+    scattered: Option<(&'a [f64], f64)>,
 }
 
 /// What one line of sight meets.
@@ -122,6 +124,7 @@ impl<'a> Tracer<'a> {
                 std::f64::consts::PI
             },
             inner_rad: (inner / d).min(1.0).asin(),
+            scattered: None,
         }
     }
 
@@ -188,13 +191,19 @@ impl<'a> Tracer<'a> {
         };
         let (dir, cos_eps, solid) = self.line_of_sight(u, v);
         let body = &self.scene.body;
-        let met = match &self.terrain {
-            Some(terrain) if self.displaced => terrain
+        let met = match (&self.terrain, &body.shape) {
+            (Some(terrain), _) if self.displaced => terrain
                 .intersect(self.camera_m, dir, 0.0)
-                .map(|t| (t, DVec3::ZERO)),
-            _ => body.shape.intersect_normal(self.camera_m, dir),
+                .map(|t| (t, DVec3::ZERO, None)),
+            (_, Shape::Mesh(m)) => m
+                .intersect(self.camera_m, dir, f64::INFINITY)
+                .map(|h| (h.t_m, m.normals()[h.triangle as usize], Some(h.triangle))),
+            _ => body
+                .shape
+                .intersect_normal(self.camera_m, dir)
+                .map(|(t, n)| (t, n, None)),
         };
-        let Some((t, shape_normal)) = met else {
+        let Some((t, shape_normal, facet)) = met else {
             return miss;
         };
         let p = self.camera_m + dir * t;
@@ -211,8 +220,22 @@ impl<'a> Tracer<'a> {
             pl_per_px2: pl,
             range_m: t,
         };
-        if g.mu0 <= 0.0 || g.mu <= 0.0 {
+        if g.mu <= 0.0 {
             return hit(0.0);
+        }
+        // Light scattered onto the facet by the others, reflected as by a Lambertian surface
+        // of the body's Bond albedo ([`crate::irradiance`]): `(rho / pi) R_i`, with `R_i` in
+        // units of the solar irradiance at the body's centre (`A_sun / d_0^2` here).
+        let scattered = match (self.scattered, facet) {
+            (Some((r, rho_over_pi)), Some(f)) => {
+                self.k_px * rho_over_pi * r[f as usize] / self.sun_m.length_squared()
+                    * cos_eps
+                    * solid
+            }
+            _ => 0.0,
+        };
+        if g.mu0 <= 0.0 {
+            return hit(scattered);
         }
         if let Some(terrain) = &self.terrain
             && terrain.shadowed(up, s, self.displaced)
@@ -223,7 +246,7 @@ impl<'a> Tracer<'a> {
         if let Shape::Mesh(m) = &body.shape
             && m.shadows(p, normal, s)
         {
-            return hit(0.0);
+            return hit(scattered);
         }
         let f_r = match &body.albedo_map {
             Some(m) => body
@@ -232,7 +255,15 @@ impl<'a> Tracer<'a> {
                 .eval(&g),
             None => body.brdf.eval(&g),
         };
-        hit(self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid)
+        hit(self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid + scattered)
+    }
+
+    /// The same tracer with the irradiance scattered onto each facet of a mesh body
+    /// (fractions of the solar irradiance at the body's centre, [`crate::irradiance`]) and the
+    /// Bond albedo that reflects it.
+    pub fn with_scattered(mut self, per_facet: &'a [f64], bond_albedo: f64) -> Self {
+        self.scattered = Some((per_facet, bond_albedo / std::f64::consts::PI));
+        self
     }
 }
 

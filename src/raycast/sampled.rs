@@ -62,11 +62,22 @@ fn cast_pixel(tracer: &Tracer, u0: f64, v0: f64, n: u32) -> (f64, f64, u8, u64) 
 
 /// Renders the `(P/L)` image of `scene` from `pose` by sampled ray casting, in the calling
 /// thread pool.
-pub fn render(scene: &Scene, pose: &Pose, settings: &Settings) -> Result<Frame, RenderError> {
+///
+/// `scattered`: a mesh's scattered irradiance per facet (fractions of the solar irradiance at
+/// the body's centre) and the Bond albedo reflecting it ([`crate::irradiance`]).
+pub fn render(
+    scene: &Scene,
+    pose: &Pose,
+    settings: &Settings,
+    scattered: Option<(&[f64], f64)>,
+) -> Result<Frame, RenderError> {
     let t0 = Instant::now();
     let intr = &scene.camera.intrinsics;
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
-    let tracer = Tracer::new(scene, pose);
+    let tracer = match scattered {
+        Some((r, rho)) => Tracer::new(scene, pose).with_scattered(r, rho),
+        None => Tracer::new(scene, pose),
+    };
     let n = settings.raycast_samples;
     // Bands of TILE rows, in tiles of TILE x TILE pixels: a tile whose lines of sight all miss
     // the bounding sphere casts nothing.

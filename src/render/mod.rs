@@ -132,6 +132,8 @@ pub struct Renderer {
     pool: rayon::ThreadPool,
     threads: usize,
     buf: Buffers,
+    /// A mesh's form factors (radiosity), by the address of the mesh they belong to.
+    form_factors: Option<(usize, std::sync::Arc<crate::irradiance::FormFactors>)>,
 }
 
 impl Renderer {
@@ -147,6 +149,7 @@ impl Renderer {
             pool,
             threads,
             buf: Buffers::default(),
+            form_factors: None,
         })
     }
 
@@ -164,10 +167,39 @@ impl Renderer {
         check_pose(scene, pose)?;
         check_settings(settings)?;
         // Meshes have no quadrangles: the ray caster renders them, into the same frame.
-        if let crate::body::Shape::Mesh(_) = scene.body.shape {
-            return self
-                .pool
-                .install(|| crate::raycast::sampled::render(scene, pose, settings));
+        if let crate::body::Shape::Mesh(mesh) = &scene.body.shape {
+            use std::sync::Arc;
+            let orders = settings.scattering_orders;
+            let ff = if orders > 0 {
+                // The form factors depend on the mesh alone: made once per mesh.
+                let key = Arc::as_ptr(mesh) as usize;
+                match &self.form_factors {
+                    Some((k, ff)) if *k == key => Some(ff.clone()),
+                    _ => {
+                        let ff = Arc::new(
+                            self.pool
+                                .install(|| crate::irradiance::FormFactors::new(mesh)),
+                        );
+                        self.form_factors = Some((key, ff.clone()));
+                        Some(ff)
+                    }
+                }
+            } else {
+                None
+            };
+            return self.pool.install(|| {
+                let rho = scene.body.brdf.albedo(crate::brdf::AlbedoType::Bond);
+                let scattered = ff.map(|ff| {
+                    let direct = crate::irradiance::direct(mesh, pose.sun_position_m);
+                    crate::irradiance::scattered(&ff, &direct, rho, orders)
+                });
+                crate::raycast::sampled::render(
+                    scene,
+                    pose,
+                    settings,
+                    scattered.as_deref().map(|r| (r, rho)),
+                )
+            });
         }
         let method = Method::resolve(settings.integration, &scene.body)?;
         let threads = self.threads;

@@ -129,6 +129,9 @@ pub struct Settings {
     pub raycast_samples: u32,
     /// Mesh bodies: rays per pixel side in pixels at the limb and at the edges of the light.
     pub raycast_edge_samples: u32,
+    /// Mesh bodies: orders of light scattered between facets that enter the image (0: direct
+    /// light only; [`crate::irradiance`]).
+    pub scattering_orders: u32,
 }
 
 impl Default for Settings {
@@ -160,6 +163,7 @@ impl Default for Settings {
             map_filter: MapFilter::Area,
             raycast_samples: 1,
             raycast_edge_samples: 4,
+            scattering_orders: 0,
         }
     }
 }

@@ -7,16 +7,17 @@
 //!
 //! | module | holds |
 //! | --- | --- |
-//! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates and local east/north, ray-sphere |
+//! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates and local east/north, ray-sphere; `bvh`: the triangle BVH (obvhs) behind rays in and hits out |
 //! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45) |
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
-//! | [`body`] | the body's shape (sphere, triaxial ellipsoid; meshes later), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps, horizons computed from the DEM by azimuth |
+//! | [`body`] | the body's shape (sphere, triaxial ellipsoid, triangle mesh: OBJ / PLY / STL loaded, checked and repaired), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps, horizons computed from the DEM by azimuth |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
 //! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure, the DN response quantile by quantile |
 //! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47) |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: view (the CSF, and the grid's space: the CSF, or an ellipsoid's parameter space), bounding, sampling, pruning, integration, projection, gridding, reconstruction |
-//! | [`raycast`] | per-pixel ray casting, the sibling of the quadrangle pipeline: what a line of sight meets and brings back (shapes, a DEM met by sphere tracing that leaps over blocks by a max-height pyramid, its shadows, maps, BRDFs), and the converged reference of any scene by adaptive cubature over each pixel's footprint, with its own error estimate |
+//! | [`raycast`] | per-pixel ray casting, the sibling of the quadrangle pipeline: what a line of sight meets and brings back (shapes, meshes through their BVH, several bodies by depth with eclipses, a DEM met by sphere tracing that leaps over blocks by a max-height pyramid, its shadows, maps, BRDFs, a mesh's scattered light); the frame of meshes and of several bodies (`sampled`: n x n rays per pixel, more at edges); and the converged reference of any scene by adaptive cubature over each pixel's footprint, with its own error estimate |
+//! | [`irradiance`] | mesh facets' irradiance (SLIM): direct with shadows, Lambertian radiosity (form factors with BVH visibility, Jacobi orders, Eqs. 4-9), statistics over a rotation (Eq. 14) |
 //! | [`fidelity`] | a frame's error against the converged reference (total; median, p95, p99 per lit pixel; SSIM): what the sweep charts and budgets are written in; the budget planner (`fidelity = "budget"`): per frame, what it shows (probe rays, the maps' contrast) and the cheapest rung of a settings ladder an error model fitted by the sweep predicts to meet the budget |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
 //! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
@@ -41,6 +42,8 @@
 //!                                        │
 //!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
 //!
+//!   (a mesh body or several bodies: Renderer::render hands the frame to raycast::sampled,
+//!    with a mesh's scattered light from irradiance; the same Frame comes out)
 //!   raycast::reference::render(scene, pose) ─► the converged Frame (+ its error per pixel)
 //!   fidelity::metrics::frame_error(frame, reference) ─► total, median / p95 / p99, SSIM
 //!   fidelity::budget::Planner::plan(scene, pose) ─► Settings + predicted error, per frame

@@ -18,8 +18,35 @@ pub struct Camera {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
     pub sun: SunSpectrum,
+    /// The body the pose is written in (its frame B is the scene's frame).
     pub body: Body,
+    /// Further bodies (`[[body]]` after the first), placed in B: a moon beside its planet,
+    /// a binary's secondary. Rendered by the ray caster, with mutual occlusion and shadows.
+    pub others: Vec<Placed>,
     pub camera: Camera,
+}
+
+/// A body placed in the first body's frame B.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Placed {
+    pub body: Body,
+    /// Its centre in B [m].
+    pub position_m: DVec3,
+    /// Rotation taking its own frame's vectors into B.
+    pub b_from_body: DQuat,
+}
+
+impl Placed {
+    /// A point [m] of B in the body's own frame.
+    #[inline]
+    pub fn to_body(&self, p_b: DVec3) -> DVec3 {
+        self.b_from_body.inverse() * (p_b - self.position_m)
+    }
+
+    /// Whether a point of B lies inside the body.
+    pub fn contains(&self, p_b: DVec3) -> bool {
+        self.body.shape.contains(self.to_body(p_b))
+    }
 }
 
 /// Everything that changes from frame to frame, in the body-fixed frame B.

@@ -220,13 +220,24 @@ impl Validator<'_> {
     fn scene(&self, raw: RawScene) -> R<Config> {
         let sun = self.sun(&raw.sun)?;
         let sun_position_m = self.finite3("sun.position_m", raw.sun.position_m)?;
-        let body = self.body(&raw.body)?;
+        let body = self.body(&raw.body[0])?;
         if sun_position_m.length() <= body.shape.bounding_radius_m() {
             return self.err(
                 "sun.position_m",
                 raw.sun.position_m,
                 "a point outside the body",
             );
+        }
+        if raw.body[0].position_m.is_some() || raw.body[0].attitude_wxyz.is_some() {
+            return self.err(
+                "body.position_m",
+                "given on the first body",
+                "absent on the first body: its frame is the scene's (the pose's)",
+            );
+        }
+        let mut others = Vec::new();
+        for (k, b) in raw.body.iter().enumerate().skip(1) {
+            others.push(self.placed(k, b, &body, &others, sun_position_m)?);
         }
         let (camera, power_band_m) = self.camera(&raw.camera)?;
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
@@ -241,7 +252,12 @@ impl Validator<'_> {
             None => None,
         };
         Ok(Config {
-            scene: Scene { sun, body, camera },
+            scene: Scene {
+                sun,
+                body,
+                others,
+                camera,
+            },
             pose,
             settings,
             power_band_m,
@@ -843,6 +859,61 @@ impl Validator<'_> {
             );
         }
         Ok(relief)
+    }
+
+    /// The `k`-th `[[body]]` (from 0), placed in the first body's frame: its shape and
+    /// reflectance as any body's (no DEM: relief belongs to the first body), its centre and
+    /// attitude; its bounding sphere must not meet another body's, nor hold the Sun.
+    fn placed(
+        &self,
+        k: usize,
+        b: &RawBody,
+        first: &Body,
+        others: &[crate::scene::Placed],
+        sun_m: glam::DVec3,
+    ) -> R<crate::scene::Placed> {
+        let key = |f: &str| format!("body[{k}].{f}");
+        if b.dem_map.is_some() || b.horizon_map.is_some() || b.normal_map.is_some() {
+            return self.err(&key("dem_map"), "given", "absent: relief is the first body's only");
+        }
+        let body = self.body(b)?;
+        let raw_pos = self.need(
+            &key("position_m"),
+            b.position_m,
+            "required after the first body: its centre in the first body's frame [m]",
+        )?;
+        let position_m = self.finite3(&key("position_m"), raw_pos)?;
+        let b_from_body = match b.attitude_wxyz {
+            None => glam::DQuat::IDENTITY,
+            Some(q) => {
+                let q = crate::geometry::body_from_camera_wxyz(q);
+                if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
+                    return self.err(&key("attitude_wxyz"), format!("{q:?}"), "a unit quaternion");
+                }
+                q
+            }
+        };
+        let r = body.shape.bounding_radius_m();
+        let apart = |c: glam::DVec3, rc: f64| (position_m - c).length() > r + rc;
+        if !apart(glam::DVec3::ZERO, first.shape.bounding_radius_m())
+            || others
+                .iter()
+                .any(|o| !apart(o.position_m, o.body.shape.bounding_radius_m()))
+        {
+            return self.err(
+                &key("position_m"),
+                raw_pos,
+                "a place where its bounding sphere meets no other body's",
+            );
+        }
+        if (sun_m - position_m).length() <= r {
+            return self.err("sun.position_m", "inside a body", "a point outside every body");
+        }
+        Ok(crate::scene::Placed {
+            body,
+            position_m,
+            b_from_body,
+        })
     }
 
     /// A mesh body's surface (`[body.mesh]`), which carries no DEM, horizon or normal map.

@@ -7,7 +7,9 @@ use serde::Deserialize;
 #[serde(deny_unknown_fields)]
 pub struct RawScene {
     pub sun: RawSun,
-    pub body: RawBody,
+    /// `[body]`, or `[[body]]` once per body (the first is the one the pose is written in).
+    #[serde(deserialize_with = "one_or_many")]
+    pub body: Vec<RawBody>,
     pub camera: RawCamera,
     pub pose: RawPose,
     #[serde(default)]
@@ -83,6 +85,29 @@ pub struct RawBody {
     pub displacement: bool,
     /// `shape = "mesh"`: the mesh file and its units.
     pub mesh: Option<RawMesh>,
+    /// A second or later `[[body]]`: its centre in the first body's frame [m].
+    pub position_m: Option<[f64; 3]>,
+    /// A second or later `[[body]]`: the rotation taking its frame's vectors into the first
+    /// body's frame, scalar first (default: none).
+    pub attitude_wxyz: Option<[f64; 4]>,
+}
+
+/// `[body]` (one table) or `[[body]]` (an array of tables), each checked as a `RawBody`.
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<RawBody>, D::Error> {
+    use serde::de::Error;
+    match toml::Value::deserialize(d)? {
+        v @ toml::Value::Table(_) => RawBody::deserialize(v)
+            .map(|b| vec![b])
+            .map_err(D::Error::custom),
+        v @ toml::Value::Array(_) => {
+            let many = Vec::<RawBody>::deserialize(v).map_err(D::Error::custom)?;
+            if many.is_empty() {
+                return Err(D::Error::custom("[[body]]: at least one body"));
+            }
+            Ok(many)
+        }
+        _ => Err(D::Error::custom("body: a [body] table or [[body]] tables")),
+    }
 }
 
 /// `[body.mesh]`: an OBJ, PLY or STL file (`docs/scene.md`, "Meshes").

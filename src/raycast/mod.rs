@@ -55,6 +55,9 @@ pub struct Tracer<'a> {
     inner_rad: f64,
     /// A mesh's scattered irradiance per facet and `rho / pi` ([`Tracer::with_scattered`]).
     scattered: Option<(&'a [f64], f64)>,
+    /// Per placed body: the unit direction (B) from the camera to its centre and the angular
+    /// radius of its bounding sphere [rad].
+    others: Vec<(DVec3, f64)>,
 }
 
 /// What one line of sight meets.
@@ -125,6 +128,20 @@ impl<'a> Tracer<'a> {
             },
             inner_rad: (inner / d).min(1.0).asin(),
             scattered: None,
+            others: scene
+                .others
+                .iter()
+                .map(|o| {
+                    let to = o.position_m - pose.camera_position_m;
+                    let (d, r) = (to.length(), o.body.shape.bounding_radius_m());
+                    let rad = if d > r {
+                        (r / d).asin()
+                    } else {
+                        std::f64::consts::PI
+                    };
+                    (to / d, rad)
+                })
+                .collect(),
         }
     }
 
@@ -154,12 +171,22 @@ impl<'a> Tracer<'a> {
             let (d, _, _) = self.line_of_sight(u0 + du, v0 + dv);
             spread = spread.max(angle(d, c));
         }
-        let spread = self.kappa * (1.1 * spread + 1e-12);
+        let spread_b = 1.1 * spread + 1e-12;
+        // Placed bodies: the cone misses all of them, or the region is an edge.
+        let near_other = self
+            .others
+            .iter()
+            .any(|&(to, rad)| angle(c, to) - spread_b <= rad);
+        let spread = self.kappa * spread_b;
         let c = (c * self.scale).normalize();
         let off = angle(c, self.to_centre);
         if off - spread > self.outer_rad {
-            Coverage::Empty
-        } else if off + spread < self.inner_rad {
+            if near_other {
+                Coverage::Edge
+            } else {
+                Coverage::Empty
+            }
+        } else if off + spread < self.inner_rad && self.others.is_empty() {
             Coverage::Inside
         } else {
             Coverage::Edge
@@ -170,7 +197,7 @@ impl<'a> Tracer<'a> {
     /// undisplaced ellipsoid in its parameter space), rather than anywhere between the
     /// spheres bounding a displaced DEM.
     pub fn tight_silhouette(&self) -> bool {
-        !self.displaced
+        !self.displaced && self.others.is_empty()
     }
 
     /// Where the line of sight through pixel position `(u, v)` meets the undisplaced shape:
@@ -190,36 +217,27 @@ impl<'a> Tracer<'a> {
             range_m: f64::NAN,
         };
         let (dir, cos_eps, solid) = self.line_of_sight(u, v);
-        let body = &self.scene.body;
-        let met = match (&self.terrain, &body.shape) {
-            (Some(terrain), _) if self.displaced => terrain
-                .intersect(self.camera_m, dir, 0.0)
-                .map(|t| (t, DVec3::ZERO, None)),
-            (_, Shape::Mesh(m)) => m
-                .intersect(self.camera_m, dir, f64::INFINITY)
-                .map(|h| (h.t_m, m.normals()[h.triangle as usize], Some(h.triangle))),
-            _ => body
-                .shape
-                .intersect_normal(self.camera_m, dir)
-                .map(|(t, n)| (t, n, None)),
-        };
-        let Some((t, shape_normal, facet)) = met else {
+        let Some((t, shape_normal, facet, which)) = self.nearest(dir) else {
             return miss;
         };
         let p = self.camera_m + dir * t;
+        let hit = |pl| Hit {
+            pl_per_px2: pl,
+            range_m: t,
+        };
+        let to_sun = self.sun_m - p;
+        let d_sun2 = to_sun.length_squared();
+        let s = to_sun / d_sun2.sqrt();
+        if which > 0 {
+            return hit(self.shade_other(which - 1, p, dir, s, shape_normal, d_sun2) * cos_eps * solid);
+        }
+        let body = &self.scene.body;
         let up = p.normalize();
         let normal = match &body.relief {
             Some(r) => r.at(up, false).normal,
             None => shape_normal,
         };
-        let to_sun = self.sun_m - p;
-        let d_sun2 = to_sun.length_squared();
-        let s = to_sun / d_sun2.sqrt();
         let g = Local::new(normal, s, -dir);
-        let hit = |pl| Hit {
-            pl_per_px2: pl,
-            range_m: t,
-        };
         if g.mu <= 0.0 {
             return hit(0.0);
         }
@@ -248,6 +266,9 @@ impl<'a> Tracer<'a> {
         {
             return hit(scattered);
         }
+        if self.eclipsed(p, s, 0) {
+            return hit(scattered);
+        }
         let f_r = match &body.albedo_map {
             Some(m) => body
                 .brdf
@@ -256,6 +277,84 @@ impl<'a> Tracer<'a> {
             None => body.brdf.eval(&g),
         };
         hit(self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid + scattered)
+    }
+
+    /// The nearest surface on the line of sight `dir` (unit, B): its range [m], outward
+    /// normal (B), facet (a mesh's) and body (0 the first, `k + 1` the `k`-th placed one).
+    #[inline]
+    fn nearest(&self, dir: DVec3) -> Option<(f64, DVec3, Option<u32>, usize)> {
+        let body = &self.scene.body;
+        let mut best = match (&self.terrain, &body.shape) {
+            (Some(terrain), _) if self.displaced => terrain
+                .intersect(self.camera_m, dir, 0.0)
+                .map(|t| (t, DVec3::ZERO, None, 0)),
+            (_, Shape::Mesh(m)) => m
+                .intersect(self.camera_m, dir, f64::INFINITY)
+                .map(|h| (h.t_m, m.normals()[h.triangle as usize], Some(h.triangle), 0)),
+            _ => body
+                .shape
+                .intersect_normal(self.camera_m, dir)
+                .map(|(t, n)| (t, n, None, 0)),
+        };
+        for (k, o) in self.scene.others.iter().enumerate() {
+            let (origin, d) = (o.to_body(self.camera_m), o.b_from_body.inverse() * dir);
+            if let Some((t, n)) = o.body.shape.intersect_normal(origin, d)
+                && best.is_none_or(|b| t < b.0)
+            {
+                best = Some((t, o.b_from_body * n, None, k + 1));
+            }
+        }
+        best
+    }
+
+    /// Whether a body other than `which` (0 the first, `k + 1` the `k`-th placed) hides the
+    /// Sun's centre, in the unit direction `s`, from the point `p` (B): eclipses and the
+    /// shadows bodies cast on each other (the Sun as a point: no penumbra).
+    #[inline]
+    fn eclipsed(&self, p: DVec3, s: DVec3, which: usize) -> bool {
+        if which != 0 {
+            let first = &self.scene.body.shape;
+            if first.intersect(p, s).is_some() {
+                return true;
+            }
+        }
+        self.scene.others.iter().enumerate().any(|(k, o)| {
+            k + 1 != which
+                && o
+                    .body
+                    .shape
+                    .intersect(o.to_body(p), o.b_from_body.inverse() * s)
+                    .is_some()
+        })
+    }
+
+    /// `(P/L)` per px^2 per unit of `cos(eps) dOmega` of the placed body `k` at its point `p`
+    /// (B) whose outward normal is `normal` (B), seen along `dir`, the Sun at `s` and `d_sun2`.
+    fn shade_other(&self, k: usize, p: DVec3, dir: DVec3, s: DVec3, normal: DVec3, d_sun2: f64) -> f64 {
+        let o = &self.scene.others[k];
+        let g = Local::new(normal, s, -dir);
+        if g.mu <= 0.0 || g.mu0 <= 0.0 {
+            return 0.0;
+        }
+        let inv = o.b_from_body.inverse();
+        let local = o.to_body(p);
+        if let Shape::Mesh(m) = &o.body.shape
+            && m.shadows(local, inv * normal, inv * s)
+        {
+            return 0.0;
+        }
+        if self.eclipsed(p, s, k + 1) {
+            return 0.0;
+        }
+        let body = &o.body;
+        let f_r = match &body.albedo_map {
+            Some(m) => body
+                .brdf
+                .with_scale(m.scale_at(local.normalize(), body.brdf.scale()))
+                .eval(&g),
+            None => body.brdf.eval(&g),
+        };
+        self.k_px * f_r * g.mu0 / d_sun2
     }
 
     /// The same tracer with the irradiance scattered onto each facet of a mesh body

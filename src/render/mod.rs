@@ -167,6 +167,12 @@ impl Renderer {
         check_pose(scene, pose)?;
         check_settings(settings)?;
         // Meshes have no quadrangles: the ray caster renders them, into the same frame.
+        if !scene.others.is_empty() && !matches!(scene.body.shape, crate::body::Shape::Mesh(_)) {
+            // Several bodies: the ray caster composes them by depth.
+            return self
+                .pool
+                .install(|| crate::raycast::sampled::render(scene, pose, settings, None));
+        }
         if let crate::body::Shape::Mesh(mesh) = &scene.body.shape {
             use std::sync::Arc;
             let orders = settings.scattering_orders;
@@ -231,6 +237,14 @@ pub(crate) fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> 
     }
     if scene.body.shape.contains(pose.sun_position_m) {
         return bad("sun_position_m", "inside the body".into());
+    }
+    for (k, o) in scene.others.iter().enumerate() {
+        if o.contains(pose.camera_position_m) {
+            return bad(
+                "camera_position_m",
+                format!("{:?} (inside body {})", pose.camera_position_m, k + 1),
+            );
+        }
     }
     Ok(())
 }

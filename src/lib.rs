@@ -18,6 +18,7 @@
 //! | [`render`] | the pipeline, one module per step: view (the CSF, and the grid's space: the CSF, or an ellipsoid's parameter space), bounding, sampling, pruning, integration, projection, gridding, reconstruction |
 //! | [`raycast`] | per-pixel ray casting, the sibling of the quadrangle pipeline: what a line of sight meets and brings back (shapes, meshes through their BVH, several bodies by depth with eclipses, a DEM met by sphere tracing that leaps over blocks by a max-height pyramid, its shadows, maps, BRDFs, a mesh's scattered light); the frame of meshes and of several bodies (`sampled`: n x n rays per pixel, more at edges); and the converged reference of any scene by adaptive cubature over each pixel's footprint, with its own error estimate |
 //! | [`irradiance`] | mesh facets' irradiance (SLIM): direct with shadows, Lambertian radiosity (form factors with BVH visibility, Jacobi orders, Eqs. 4-9), statistics over a rotation (Eq. 14) |
+//! | [`inversion`] | Hapke parameters from images of a body of known shape and pose (SLIM Sec. 11): the renderer's lines of sight cast once, Levenberg-Marquardt on the shot- and read-noise-weighted residuals, uncertainties from the normal matrix, the histogram chi-square of Eq. 15 |
 //! | [`fidelity`] | a frame's error against the converged reference (total; median, p95, p99 per lit pixel; SSIM): what the sweep charts and budgets are written in; the budget planner (`fidelity = "budget"`): per frame, what it shows (probe rays, the maps' contrast) and the cheapest rung of a settings ladder an error model fitted by the sweep predicts to meet the budget |
 //! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
 //! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
@@ -79,6 +80,7 @@ pub mod display;
 pub mod fidelity;
 pub mod geometry;
 pub mod io;
+pub mod inversion;
 pub mod irradiance;
 pub mod pipeline;
 pub mod radiometry;

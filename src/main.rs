@@ -75,6 +75,21 @@ enum Command {
         #[arg(long, default_value = "config/error_model.toml")]
         out: PathBuf,
     },
+    /// The Hapke parameters w, b, c, B0, h, theta of a body from images of it (SLIM Sec. 11),
+    /// with their uncertainties and the radiance histograms' chi-square (SLIM Eq. 15).
+    Invert {
+        /// SCENE=IMAGE pairs: a scene file (the body's shape, the camera, the detector and the
+        /// pose of that image) and the image as a PNG of saved DN (`optistim render`'s
+        /// image.png).
+        #[arg(required = true)]
+        images: Vec<String>,
+        /// Starting values: w,b,c,B0,h,theta_rad.
+        #[arg(long, value_delimiter = ',', default_value = "0.3,0.3,0.5,1.0,0.1,0.3")]
+        start: Vec<f64>,
+        /// Lines of sight per pixel side (as the renderer's raycast_samples).
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+    },
     /// The surface irradiance of a mesh body (SLIM Secs. 6.1-6.2, 9.3): per facet, direct
     /// (with the body's own shadows) and scattered between facets (Lambertian radiosity,
     /// `--orders` Jacobi iterations); writes DIR/irradiance.csv and DIR/irradiance.ply (face
@@ -244,6 +259,24 @@ fn run() -> anyhow::Result<()> {
             };
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
             println!("{}", serde_json::to_string(&summary)?);
+        }
+        Command::Invert {
+            images,
+            start,
+            samples,
+        } => {
+            let start: [f64; 6] = start
+                .try_into()
+                .map_err(|v: Vec<f64>| anyhow::anyhow!("--start: 6 values, got {}", v.len()))?;
+            let mut pairs = Vec::new();
+            for arg in &images {
+                let (scene, image) = arg
+                    .split_once('=')
+                    .with_context(|| format!("{arg:?}: expected SCENE=IMAGE"))?;
+                pairs.push((config::load(std::path::Path::new(scene))?, PathBuf::from(image)));
+            }
+            let fit = app::invert::run(&pairs, start, samples)?;
+            println!("{}", serde_json::to_string(&fit)?);
         }
         Command::Irradiance {
             scene,

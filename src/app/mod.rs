@@ -4,6 +4,7 @@ pub mod bench;
 pub mod bench_endpoints;
 pub mod calibrate;
 pub mod compare;
+pub mod invert;
 pub mod irradiance;
 pub mod render;
 pub mod replay;
@@ -30,6 +31,8 @@ pub enum AppError {
     Display(#[from] crate::display::DisplayError),
     #[error("compare: {0}")]
     Compare(String),
+    #[error("invert: {0}")]
+    Invert(String),
     #[error("irradiance: {0}")]
     Irradiance(String),
     #[error("stability: {0}")]

@@ -279,6 +279,47 @@ impl<'a> Tracer<'a> {
         hit(self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid + scattered)
     }
 
+    /// The photometric geometry of the line of sight through `(u, v)` where it meets the first
+    /// body in direct sunlight: `(mu0, mu, cos g, k)` with `k` the `(P/L)` per px^2 per unit of
+    /// `f_r` (so that [`Tracer::cast`] gives `k f_r` there, scattered light aside). `None` where
+    /// it misses, meets another body, or the point is unlit or shadowed. What the Hapke
+    /// inversion ([`crate::inversion`]) fits the BRDF on.
+    pub fn photometry(&self, u: f64, v: f64) -> Option<(f64, f64, f64, f64)> {
+        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
+        let (t, shape_normal, _, which) = self.nearest(dir)?;
+        if which != 0 {
+            return None;
+        }
+        let p = self.camera_m + dir * t;
+        let body = &self.scene.body;
+        let up = p.normalize();
+        let normal = match &body.relief {
+            Some(r) => r.at(up, false).normal,
+            None => shape_normal,
+        };
+        let to_sun = self.sun_m - p;
+        let d_sun2 = to_sun.length_squared();
+        let s = to_sun / d_sun2.sqrt();
+        let g = Local::new(normal, s, -dir);
+        if g.mu <= 0.0 || g.mu0 <= 0.0 {
+            return None;
+        }
+        if let Some(terrain) = &self.terrain
+            && terrain.shadowed(up, s, self.displaced)
+        {
+            return None;
+        }
+        if let Shape::Mesh(m) = &body.shape
+            && m.shadows(p, normal, s)
+        {
+            return None;
+        }
+        if self.eclipsed(p, s, 0) {
+            return None;
+        }
+        Some((g.mu0, g.mu, s.dot(-dir), self.k_px * g.mu0 * cos_eps / d_sun2 * solid))
+    }
+
     /// The nearest surface on the line of sight `dir` (unit, B): its range [m], outward
     /// normal (B), facet (a mesh's) and body (0 the first, `k + 1` the `k`-th placed one).
     #[inline]

@@ -163,3 +163,69 @@ fn a_mesh_moon_eclipses_like_the_sphere_it_approximates() {
     eprintln!("mesh moon {sa:.6e}, sphere moon {sb:.6e}");
     assert!((sa / sb - 1.0).abs() < 1e-3, "{sa} vs {sb}");
 }
+
+#[test]
+fn the_pose_protocol_moves_the_further_bodies() {
+    use optistim::server::frames::{Mode, PresenterChoice};
+    use optistim::server::protocol::{BodyPoseMsg, Message, PoseMsg};
+    use std::io::{BufRead, BufReader, Write};
+    // The daemon's scene with a moon of 200 km added.
+    let text = small_daemon_config().replace("[body]", "[[body]]").replace(
+        "[camera]\n",
+        "[[body]]\nname = \"moonlet\"\nradius_m = 5.0e5\nposition_m = [0.0, 0.0, 9.0e6]\n\
+         brdf = \"lambert\"\nalbedo = 0.3\nalbedo_type = \"normal\"\n\n[camera]\n",
+    );
+    let d = start_daemon(&text, PresenterChoice::Cpu, Mode::Lockstep, None, None);
+    let s = std::net::TcpStream::connect(d.tcp_addr).unwrap();
+    s.set_read_timeout(Some(std::time::Duration::from_secs(60))).unwrap();
+    let mut w = s.try_clone().unwrap();
+    let mut lines = BufReader::new(s).lines();
+    // 30 deg of phase: the moon's shadow on the planet's day side in view.
+    let cam = DVec3::new(8.66e7, 5.0e7, 0.0);
+    let q = optistim::geometry::look_at(cam, DVec3::ZERO, DVec3::Z);
+    let pose = |id: u64, moon: Option<[f64; 3]>| PoseMsg {
+        frame_id: id,
+        time_tag_s: id as f64,
+        camera_position_m: cam.to_array(),
+        attitude_wxyz: optistim::geometry::wxyz(q),
+        sun_position_m: [AU, 0.0, 0.0],
+        body_attitude_wxyz: None,
+        exposure_s: None,
+        bodies: moon.map(|p| {
+            vec![BodyPoseMsg {
+                position_m: p,
+                attitude_wxyz: [1.0, 0.0, 0.0, 0.0],
+            }]
+        }),
+    };
+    let mut ask = |m: PoseMsg| -> (serde_json::Value, Vec<u8>) {
+        writeln!(w, "{}", serde_json::to_string(&Message::Pose(m)).unwrap()).unwrap();
+        let reply: serde_json::Value =
+            serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+        (reply, http(d.http_addr, "GET", "/frame/latest.png", b"").1)
+    };
+    // The moon between the Sun and the planet: its shadow on the planet.
+    let (a, shadowed) = ask(pose(1, Some([6.0e6, 0.0, 0.0])));
+    assert_eq!(a["status"].as_str(), Some("presented"), "{a}");
+    // Out of the sunlight's way: the planet whole.
+    let (b, whole) = ask(pose(2, Some([0.0, 0.0, 9.0e6])));
+    assert_eq!(b["status"].as_str(), Some("presented"), "{b}");
+    assert!(shadowed != whole, "moving the moon changes the screen");
+    // A pose without bodies leaves them where the last one put them.
+    let (c, same) = ask(pose(3, None));
+    assert_eq!(c["status"].as_str(), Some("presented"), "{c}");
+    assert!(same == whole, "a pose without bodies keeps them");
+    // Two bodies for a scene with one, or one inside the planet: refused, named, the daemon
+    // serving on.
+    let mut two = pose(4, Some([0.0, 0.0, 9.0e6]));
+    let first = two.bodies.as_ref().unwrap()[0];
+    two.bodies.as_mut().unwrap().push(first);
+    let (e, _) = ask(two);
+    assert_eq!(e["code"].as_str(), Some("bad_value"), "{e}");
+    assert!(e["message"].as_str().unwrap().contains("2 bodies"), "{e}");
+    let (e, _) = ask(pose(5, Some([2.0e6, 0.0, 0.0])));
+    assert!(e["message"].as_str().unwrap().contains("overlap"), "{e}");
+    let (f, again) = ask(pose(6, None));
+    assert_eq!(f["status"].as_str(), Some("presented"), "{f}");
+    assert!(again == whole, "the refused poses moved nothing");
+}

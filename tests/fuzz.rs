@@ -48,6 +48,14 @@ fn random_message(rng: &mut Pcg64) -> Message {
                 .random_bool(0.3)
                 .then(|| [f(rng), f(rng), f(rng), f(rng)]),
             exposure_s: rng.random_bool(0.3).then(|| f(rng)),
+            bodies: rng.random_bool(0.2).then(|| {
+                (0..rng.random_range(0..4))
+                    .map(|_| optistim::server::protocol::BodyPoseMsg {
+                        position_m: [f(rng), f(rng), f(rng)],
+                        attitude_wxyz: [f(rng), f(rng), f(rng), f(rng)],
+                    })
+                    .collect()
+            }),
         }),
         4 => Message::Config { json: s(rng) },
         5 => Message::Subscribe {

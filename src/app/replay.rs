@@ -92,6 +92,7 @@ pub fn read_poses(path: &Path) -> Result<Vec<PoseMsg>, AppError> {
             sun_position_m: p.sun_position_m.to_array(),
             body_attitude_wxyz: None,
             exposure_s: None,
+            bodies: None,
         })
         .collect())
 }

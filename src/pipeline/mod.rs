@@ -95,6 +95,60 @@ impl FrameMaker {
         self.camera.as_ref()
     }
 
+    /// Moves the scene's further bodies (`Scene::others`, in order) to `placements`: each
+    /// centre [m] and rotation from its frame, in the first body's frame. They stay there
+    /// until moved again. Refused (nothing moves) when the count differs from the scene's, or
+    /// when a body's bounding sphere would meet another's or hold the Sun.
+    pub fn place_bodies(
+        &mut self,
+        placements: &[(glam::DVec3, glam::DQuat)],
+    ) -> Result<(), PipelineError> {
+        let scene = &self.config.scene;
+        let bad = |value: String| {
+            Err(PipelineError::Render(RenderError::BadPose {
+                field: "bodies",
+                value,
+            }))
+        };
+        if placements.len() != scene.others.len() {
+            return bad(format!(
+                "{} bodies for a scene with {} further bodies",
+                placements.len(),
+                scene.others.len()
+            ));
+        }
+        let spheres: Vec<(glam::DVec3, f64)> = std::iter::once((
+            glam::DVec3::ZERO,
+            scene.body.shape.bounding_radius_m(),
+        ))
+        .chain(
+            placements
+                .iter()
+                .zip(&scene.others)
+                .map(|((p, _), o)| (*p, o.body.shape.bounding_radius_m())),
+        )
+        .collect();
+        for i in 0..spheres.len() {
+            for j in i + 1..spheres.len() {
+                if (spheres[i].0 - spheres[j].0).length() <= spheres[i].1 + spheres[j].1 {
+                    return bad(format!(
+                        "bodies {i} and {j} overlap (their bounding spheres meet)"
+                    ));
+                }
+            }
+        }
+        for (k, (_, q)) in placements.iter().enumerate() {
+            if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
+                return bad(format!("bodies[{k}] attitude {q:?} is not a unit quaternion"));
+            }
+        }
+        for (o, (p, q)) in self.config.scene.others.iter_mut().zip(placements) {
+            o.position_m = *p;
+            o.b_from_body = *q;
+        }
+        Ok(())
+    }
+
     /// Renders `pose` and runs the stimulator chain up to the screen region's F_eff and the
     /// clip counts ([`Stimulator::prepare`]): the screen's codes come from the presenter
     /// ([`crate::display`]) or from [`FrameMaker::invert_on_cpu`].

@@ -239,6 +239,9 @@ pub(crate) fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> 
         return bad("sun_position_m", "inside the body".into());
     }
     for (k, o) in scene.others.iter().enumerate() {
+        if o.contains(pose.sun_position_m) {
+            return bad("sun_position_m", format!("inside body {}", k + 1));
+        }
         if o.contains(pose.camera_position_m) {
             return bad(
                 "camera_position_m",

@@ -275,9 +275,17 @@ impl Conn {
                         return self.error(e);
                     }
                 };
+                let bodies = match to_bodies(&p) {
+                    Ok(b) => b,
+                    Err(mut e) => {
+                        e.frame_id = Some(frame_id);
+                        return self.error(e);
+                    }
+                };
                 let job = Job {
                     pose,
                     exposure_s,
+                    bodies,
                     received,
                     reply: self.out.clone(),
                     products: None,
@@ -333,6 +341,51 @@ pub fn submit(shared: &Shared, job: Job) -> Result<(), ProtocolError> {
     Ok(())
 }
 
+/// A unit quaternion (within 1e-6 of unit norm, then normalised) as a rotation; `name`
+/// names it in the error.
+fn unit_quat(name: &str, q: [f64; 4]) -> Result<glam::DQuat, ProtocolError> {
+    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if !q.iter().all(|x| x.is_finite()) || (n - 1.0).abs() > 1e-6 {
+        return Err(ProtocolError::new(
+            ErrorCode::BadValue,
+            format!("{name} {q:?} has norm {n}, not 1 (within 1e-6)"),
+        ));
+    }
+    Ok(body_from_camera_wxyz(q.map(|x| x / n)))
+}
+
+/// The rotation from the pose's world frame into the first body's frame.
+fn body_from_world(p: &PoseMsg) -> Result<glam::DQuat, ProtocolError> {
+    Ok(match p.body_attitude_wxyz {
+        Some(q) => unit_quat("body_attitude_wxyz", q)?.inverse(),
+        None => glam::DQuat::IDENTITY,
+    })
+}
+
+/// The further bodies of a pose message in the first body's frame: each centre [m] and the
+/// rotation from its frame into the first body's; `None` when the pose leaves them be.
+pub fn to_bodies(p: &PoseMsg) -> Result<Option<Vec<(DVec3, glam::DQuat)>>, ProtocolError> {
+    let Some(bodies) = &p.bodies else {
+        return Ok(None);
+    };
+    let b_from_w = body_from_world(p)?;
+    bodies
+        .iter()
+        .enumerate()
+        .map(|(k, b)| {
+            if !b.position_m.iter().all(|x| x.is_finite()) {
+                return Err(ProtocolError::new(
+                    ErrorCode::BadValue,
+                    format!("bodies[{k}].position_m {:?} is not finite", b.position_m),
+                ));
+            }
+            let q = unit_quat(&format!("bodies[{k}].attitude_wxyz"), b.attitude_wxyz)?;
+            Ok((b_from_w * DVec3::from_array(b.position_m), b_from_w * q))
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
 /// A pose message as the renderer's pose, and its exposure: every value finite, unit
 /// quaternions (within 1e-6, then normalised), a positive exposure.
 pub fn to_pose(p: &PoseMsg) -> Result<(Pose, Option<f64>), ProtocolError> {
@@ -359,13 +412,7 @@ pub fn to_pose(p: &PoseMsg) -> Result<(Pose, Option<f64>), ProtocolError> {
         }
     };
     let world_from_camera = unit("attitude_wxyz", p.attitude_wxyz)?;
-    let body_from_world = match p.body_attitude_wxyz {
-        Some(q) => {
-            finite("body_attitude_wxyz", &q)?;
-            unit("body_attitude_wxyz", q)?.inverse()
-        }
-        None => glam::DQuat::IDENTITY,
-    };
+    let body_from_world = body_from_world(p)?;
     if let Some(e) = p.exposure_s
         && !(e.is_finite() && e > 0.0)
     {

@@ -38,6 +38,9 @@ pub enum Mode {
 pub struct Job {
     pub pose: Pose,
     pub exposure_s: Option<f64>,
+    /// Where the scene's further bodies are from this frame on (first body's frame: centre
+    /// [m], rotation from each one's frame), when the pose moves them.
+    pub bodies: Option<Vec<(glam::DVec3, glam::DQuat)>>,
     pub received: Instant,
     /// Where the ack goes: the connection's outbound queue.
     pub reply: Outbound,
@@ -304,7 +307,11 @@ impl FrameThread {
 
     fn frame(&mut self, job: Job) {
         let render_start = Instant::now();
-        let made = match self.maker.render(&job.pose) {
+        let placed = match &job.bodies {
+            Some(b) => self.maker.place_bodies(b),
+            None => Ok(()),
+        };
+        let made = match placed.and_then(|()| self.maker.render(&job.pose)) {
             Ok(m) => m,
             Err(e) => {
                 self.shared.stats.render_failures.inc();

@@ -150,6 +150,7 @@ impl CompatLink {
         let job = frames::Job {
             pose,
             exposure_s,
+            bodies: None,
             received: Instant::now(),
             reply: self.out.clone(),
             products: Some(tx),

@@ -122,6 +122,19 @@ pub struct PoseMsg {
     /// The simulated camera's exposure for this frame [s] (the scene's otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure_s: Option<f64>,
+    /// The scene's further bodies (`[[body]]` after the first), in order, in the world frame:
+    /// each one's centre and attitude (its frame -> world). They stay where a pose last put
+    /// them (where the scene file puts them before any).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bodies: Option<Vec<BodyPoseMsg>>,
+}
+
+/// Where one of the further bodies is, in the world frame of a [`PoseMsg`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyPoseMsg {
+    pub position_m: [f64; 3],
+    pub attitude_wxyz: [f64; 4],
 }
 
 /// What became of a pose.
@@ -321,12 +334,22 @@ impl Message {
                 w.f64s(&p.attitude_wxyz);
                 w.f64s(&p.sun_position_m);
                 w.u8(u8::from(p.body_attitude_wxyz.is_some())
-                    | (u8::from(p.exposure_s.is_some()) << 1));
+                    | (u8::from(p.exposure_s.is_some()) << 1)
+                    | (u8::from(p.bodies.is_some()) << 2));
                 if let Some(q) = p.body_attitude_wxyz {
                     w.f64s(&q);
                 }
                 if let Some(e) = p.exposure_s {
                     w.f64(e);
+                }
+                if let Some(bodies) = &p.bodies {
+                    // At most 255 (the encoder of a longer list sends the first 255).
+                    let n = bodies.len().min(255);
+                    w.u8(n as u8);
+                    for b in &bodies[..n] {
+                        w.f64s(&b.position_m);
+                        w.f64s(&b.attitude_wxyz);
+                    }
                 }
             }
             Message::Config { json } | Message::ConfigAck { json } => {
@@ -424,8 +447,8 @@ impl Message {
                 let attitude_wxyz = r.f64s()?;
                 let sun_position_m = r.f64s()?;
                 let flags = r.u8()?;
-                if flags & !3 != 0 {
-                    return Err(malformed(format!("pose flags {flags:#04x}: only bits 0-1")));
+                if flags & !7 != 0 {
+                    return Err(malformed(format!("pose flags {flags:#04x}: only bits 0-2")));
                 }
                 let body_attitude_wxyz = if flags & 1 != 0 {
                     Some(r.f64s()?)
@@ -433,6 +456,19 @@ impl Message {
                     None
                 };
                 let exposure_s = if flags & 2 != 0 { Some(r.f64()?) } else { None };
+                let bodies = if flags & 4 != 0 {
+                    let n = r.u8()?;
+                    let mut v = Vec::with_capacity(n as usize);
+                    for _ in 0..n {
+                        v.push(BodyPoseMsg {
+                            position_m: r.f64s()?,
+                            attitude_wxyz: r.f64s()?,
+                        });
+                    }
+                    Some(v)
+                } else {
+                    None
+                };
                 Message::Pose(PoseMsg {
                     frame_id,
                     time_tag_s,
@@ -441,6 +477,7 @@ impl Message {
                     sun_position_m,
                     body_attitude_wxyz,
                     exposure_s,
+                    bodies,
                 })
             }
             kind::CONFIG | kind::CONFIG_ACK => {
@@ -787,6 +824,10 @@ mod tests {
             sun_position_m: [1.5e11, 0.0, 0.0],
             body_attitude_wxyz: Some([0.0, 1.0, 0.0, 0.0]),
             exposure_s: Some(1e-3),
+            bodies: Some(vec![BodyPoseMsg {
+                position_m: [2e7, 1.0, 0.5],
+                attitude_wxyz: [0.0, 0.0, 1.0, 0.0],
+            }]),
         })
     }
 

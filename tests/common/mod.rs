@@ -318,6 +318,7 @@ pub fn nrho_pose(frame_id: u64) -> optistim::server::protocol::PoseMsg {
         sun_position_m: [-21942843927.655, -147906691958.697, -4652417884.904],
         body_attitude_wxyz: None,
         exposure_s: None,
+        bodies: None,
     }
 }
 

@@ -202,7 +202,7 @@ fn solve(a: &[[f64; 6]; 6], b: &[f64; 6]) -> Option<[f64; 6]> {
         for j in 0..=i {
             let s: f64 = a[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
             if i == j {
-                if !(s > 0.0) {
+                if s.is_nan() || s <= 0.0 {
                     return None;
                 }
                 l[i][i] = s.sqrt();
@@ -229,7 +229,11 @@ fn normal_equations(d: &Data, p: &[f64; 6], m: &[f64]) -> ([[f64; 6]; 6], [f64; 
         let mut q = *p;
         // Forward or backward difference, whichever stays in the domain.
         let dk = 1e-5 * (UPPER[k] - LOWER[k]);
-        q[k] = if p[k] + dk <= UPPER[k] { p[k] + dk } else { p[k] - dk };
+        q[k] = if p[k] + dk <= UPPER[k] {
+            p[k] + dk
+        } else {
+            p[k] - dk
+        };
         let h = q[k] - p[k];
         let mq = model(d, &q);
         cols.push(mq.iter().zip(m).map(|(a, b)| (a - b) / h).collect());
@@ -247,9 +251,11 @@ fn normal_equations(d: &Data, p: &[f64; 6], m: &[f64]) -> ([[f64; 6]; 6], [f64; 
             }
         }
     }
-    for r_ in 0..6 {
-        for c in 0..r_ {
-            a[c][r_] = a[r_][c];
+    // The upper triangle mirrors the lower.
+    let lower = a;
+    for (r_, row) in lower.iter().enumerate() {
+        for (c, &v) in row.iter().enumerate().take(r_) {
+            a[c][r_] = v;
         }
     }
     (a, g)

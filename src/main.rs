@@ -273,7 +273,10 @@ fn run() -> anyhow::Result<()> {
                 let (scene, image) = arg
                     .split_once('=')
                     .with_context(|| format!("{arg:?}: expected SCENE=IMAGE"))?;
-                pairs.push((config::load(std::path::Path::new(scene))?, PathBuf::from(image)));
+                pairs.push((
+                    config::load(std::path::Path::new(scene))?,
+                    PathBuf::from(image),
+                ));
             }
             let fit = app::invert::run(&pairs, start, samples)?;
             println!("{}", serde_json::to_string(&fit)?);

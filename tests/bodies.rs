@@ -78,7 +78,10 @@ fn an_eclipse_takes_the_light_of_the_geometric_shadow() {
     let k = cfg.scene.sun.area_m2() * cfg.scene.camera.intrinsics.aperture_area_m2();
     let f_r = cfg.scene.body.brdf.scale() / std::f64::consts::PI;
     let (nl, nb) = (4000, 2000);
-    let (dl, db) = (std::f64::consts::TAU / nl as f64, std::f64::consts::PI / nb as f64);
+    let (dl, db) = (
+        std::f64::consts::TAU / nl as f64,
+        std::f64::consts::PI / nb as f64,
+    );
     let mut want = 0.0;
     let mut shadow_area = 0.0;
     for j in 0..nb {
@@ -177,7 +180,8 @@ fn the_pose_protocol_moves_the_further_bodies() {
     );
     let d = start_daemon(&text, PresenterChoice::Cpu, Mode::Lockstep, None, None);
     let s = std::net::TcpStream::connect(d.tcp_addr).unwrap();
-    s.set_read_timeout(Some(std::time::Duration::from_secs(60))).unwrap();
+    s.set_read_timeout(Some(std::time::Duration::from_secs(60)))
+        .unwrap();
     let mut w = s.try_clone().unwrap();
     let mut lines = BufReader::new(s).lines();
     // 30 deg of phase: the moon's shadow on the planet's day side in view.

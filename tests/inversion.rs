@@ -37,7 +37,10 @@ fn scene(phase_deg: f64) -> Config {
                 path.display()
             ),
         )
-        .replace("albedo_type = \"normal\"", "albedo_type = \"single_scattering\"");
+        .replace(
+            "albedo_type = \"normal\"",
+            "albedo_type = \"single_scattering\"",
+        );
     let mut cfg = optistim::config::parse(&text, "<test>").unwrap_or_else(|e| panic!("{e}"));
     // An exposure that puts the brightest pixel near two thirds of the full well.
     let frame = Renderer::new(0)
@@ -103,7 +106,11 @@ fn hapke_parameters_come_back_from_noisy_images_within_their_uncertainties() {
             fit.sigma[k],
             TRUTH[k]
         );
-        assert!(fit.sigma[k] < 0.2 * TRUTH[k].max(0.1), "{} poorly constrained", NAMES[k]);
+        assert!(
+            fit.sigma[k] < 0.2 * TRUTH[k].max(0.1),
+            "{} poorly constrained",
+            NAMES[k]
+        );
     }
 }
 
@@ -115,8 +122,13 @@ fn optistim_invert_reads_rendered_pngs() {
     for (k, a) in [3.0, 40.0, 80.0].iter().enumerate() {
         let cfg = scene(*a);
         let out = dir.join(format!("img{k}"));
-        optistim::app::render::run(&cfg, "bennu", &out, optistim::app::render::Method::Quadrangle)
-            .unwrap_or_else(|e| panic!("{e}"));
+        optistim::app::render::run(
+            &cfg,
+            "bennu",
+            &out,
+            optistim::app::render::Method::Quadrangle,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         pairs.push((cfg, out.join("image.png")));
     }
     let fit = optistim::app::invert::run(&pairs, [0.5, 0.4, 0.5, 1.0, 0.2, 0.3], 1)

@@ -6,8 +6,8 @@
 mod common;
 use common::*;
 use glam::DVec3;
-use optistim::body::mesh::{Mesh, geodesic_sphere};
 use optistim::body::Shape;
+use optistim::body::mesh::{Mesh, geodesic_sphere};
 use optistim::config::Config;
 use optistim::render::{Renderer, Settings};
 use std::sync::Arc;
@@ -149,13 +149,15 @@ fn hits_and_shadows_equal_a_brute_force_search_on_itokawa() {
                 None => assert!(got.range_m.is_nan(), "pixel {i},{j}: hit {got:?}"),
                 Some((t, f)) => {
                     hits += 1;
-                    assert!((got.range_m - t).abs() < 1e-5 * t, "{i},{j}: {got:?} vs {t}");
+                    assert!(
+                        (got.range_m - t).abs() < 1e-5 * t,
+                        "{i},{j}: {got:?} vs {t}"
+                    );
                     let p = cam + dir * t;
                     let n = mesh.normals()[f];
                     let s = (sun - p).normalize();
                     let facing = n.dot(s) > 0.0 && n.dot(-dir) > 0.0;
-                    let blocked = facing
-                        && brute_force(mesh, p + n * (1e-6 * r), s).is_some();
+                    let blocked = facing && brute_force(mesh, p + n * (1e-6 * r), s).is_some();
                     shadowed += blocked as usize;
                     let want_lit = facing && !blocked;
                     lit += want_lit as usize;
@@ -182,8 +184,8 @@ fn every_shared_shape_loads_and_renders() {
     assert!(names.len() >= 6, "{names:?}");
     for path in names {
         let name = path.file_name().unwrap().to_str().unwrap();
-        let probe = Mesh::load(&path, 1000.0, glam::DMat3::IDENTITY)
-            .unwrap_or_else(|e| panic!("{e}"));
+        let probe =
+            Mesh::load(&path, 1000.0, glam::DMat3::IDENTITY).unwrap_or_else(|e| panic!("{e}"));
         let d = 6.0 * probe.bounding_radius_m();
         let cfg = shape_scene(
             &SceneSpec {
@@ -396,7 +398,10 @@ fn bad_mesh_files_are_refused_with_what_is_wrong() {
         match optistim::config::parse(&scene, file.to_str().unwrap()) {
             Err(e) => {
                 let e = e.to_string();
-                assert!(e.contains("body.mesh.path") && e.contains(want), "{name}: {e}");
+                assert!(
+                    e.contains("body.mesh.path") && e.contains(want),
+                    "{name}: {e}"
+                );
             }
             Ok(_) => panic!("{name}: accepted"),
         }
@@ -407,7 +412,10 @@ fn bad_mesh_files_are_refused_with_what_is_wrong() {
     let ok = mesh_scene("cube.obj");
     for (text, key) in [
         (ok.replace("units = \"km\"", ""), "body.mesh.units"),
-        (ok.replace("units = \"km\"", "units = \"furlong\""), "body.mesh.units"),
+        (
+            ok.replace("units = \"km\"", "units = \"furlong\""),
+            "body.mesh.units",
+        ),
         (
             ok.replace("shape = \"mesh\"", "shape = \"mesh\"\nradius_m = 5.0"),
             "body.radius_m",
@@ -495,7 +503,10 @@ fn scattered_light_enters_the_image_with_the_power_the_facets_reflect() {
         "scattered light in the image {got:.4e}, reflected by the facets {want:.4e}; direct {:.4e}",
         direct_img.iter().sum::<f64>()
     );
-    assert!(want > 0.0 && (got / want - 1.0).abs() < 0.01, "{got} vs {want}");
+    assert!(
+        want > 0.0 && (got / want - 1.0).abs() < 0.01,
+        "{got} vs {want}"
+    );
     // Shadowed facets now show: pixels dark in direct light are lit by the bowl.
     let shadowed_lit = (0..with.len())
         .filter(|&p| direct_img[p] == 0.0 && with[p] > 0.0)

@@ -8,7 +8,11 @@ use crate::inversion::{Image, Inversion, invert};
 use std::path::PathBuf;
 
 /// Fits the parameters to the `(scene, image)` pairs from `start` (`w, b, c, B0, h, theta`).
-pub fn run(pairs: &[(Config, PathBuf)], start: [f64; 6], samples: u32) -> Result<Inversion, AppError> {
+pub fn run(
+    pairs: &[(Config, PathBuf)],
+    start: [f64; 6],
+    samples: u32,
+) -> Result<Inversion, AppError> {
     let mut dns = Vec::with_capacity(pairs.len());
     for (cfg, path) in pairs {
         let bytes = std::fs::read(path).map_err(|source| crate::io::IoError::File {

@@ -36,7 +36,12 @@ pub struct IrradianceSummary {
     pub seconds: f64,
 }
 
-pub fn run(config: &Config, out: &Path, orders: u32, steps: u32) -> Result<IrradianceSummary, AppError> {
+pub fn run(
+    config: &Config,
+    out: &Path,
+    orders: u32,
+    steps: u32,
+) -> Result<IrradianceSummary, AppError> {
     let t0 = Instant::now();
     let Shape::Mesh(mesh) = &config.scene.body.shape else {
         return Err(AppError::Irradiance(
@@ -58,19 +63,31 @@ pub fn run(config: &Config, out: &Path, orders: u32, steps: u32) -> Result<Irrad
         Some(ff) => irr::scattered(ff, &direct, rho, orders),
         None => vec![0.0; direct.len()],
     };
-    let stats = (steps > 0).then(|| irr::rotation_stats(mesh, ff.as_ref(), sun_m, rho, orders, steps));
+    let stats =
+        (steps > 0).then(|| irr::rotation_stats(mesh, ff.as_ref(), sun_m, rho, orders, steps));
 
     // CSV, one row per facet, in W/m^2.
     let write_err = |e: String| AppError::Irradiance(format!("{}: {e}", out.display()));
-    let mut csv = csv::Writer::from_path(out.join("irradiance.csv")).map_err(|e| write_err(e.to_string()))?;
+    let mut csv =
+        csv::Writer::from_path(out.join("irradiance.csv")).map_err(|e| write_err(e.to_string()))?;
     let mut header = vec![
-        "facet", "x_m", "y_m", "z_m", "nx", "ny", "nz", "area_m2", "direct_w_m2",
-        "scattered_w_m2", "total_w_m2",
+        "facet",
+        "x_m",
+        "y_m",
+        "z_m",
+        "nx",
+        "ny",
+        "nz",
+        "area_m2",
+        "direct_w_m2",
+        "scattered_w_m2",
+        "total_w_m2",
     ];
     if stats.is_some() {
         header.extend(["mean_w_m2", "min_w_m2", "max_w_m2", "lit_fraction"]);
     }
-    csv.write_record(&header).map_err(|e| write_err(e.to_string()))?;
+    csv.write_record(&header)
+        .map_err(|e| write_err(e.to_string()))?;
     let (c, n, a) = (mesh.centroids_m(), mesh.normals(), mesh.areas_m2());
     for i in 0..direct.len() {
         let mut row = vec![
@@ -94,14 +111,18 @@ pub fn run(config: &Config, out: &Path, orders: u32, steps: u32) -> Result<Irrad
                 s.lit_fraction[i].to_string(),
             ]);
         }
-        csv.write_record(&row).map_err(|e| write_err(e.to_string()))?;
+        csv.write_record(&row)
+            .map_err(|e| write_err(e.to_string()))?;
     }
     csv.flush().map_err(|e| write_err(e.to_string()))?;
 
     // PLY: the mesh with the same quantities as face properties (binary little-endian).
     let mut faces: Vec<(&str, Vec<f64>)> = vec![
         ("direct_w_m2", direct.iter().map(|x| solar * x).collect()),
-        ("scattered_w_m2", scattered.iter().map(|x| solar * x).collect()),
+        (
+            "scattered_w_m2",
+            scattered.iter().map(|x| solar * x).collect(),
+        ),
     ];
     if let Some(s) = &stats {
         faces.push(("mean_w_m2", s.mean.iter().map(|x| solar * x).collect()));
@@ -144,9 +165,10 @@ fn face_ply(mesh: &crate::body::Mesh, faces: &[(&str, Vec<f64>)]) -> Ply<Default
         .push("optistim irradiance: face properties in W/m^2 (lit_fraction: 0..1)".into());
     let mut vertex = ElementDef::new("vertex".into());
     for k in ["x", "y", "z"] {
-        vertex
-            .properties
-            .add(PropertyDef::new(k.into(), PropertyType::Scalar(ScalarType::Double)));
+        vertex.properties.add(PropertyDef::new(
+            k.into(),
+            PropertyType::Scalar(ScalarType::Double),
+        ));
     }
     ply.header.elements.add(vertex);
     let mut face = ElementDef::new("face".into());

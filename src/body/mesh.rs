@@ -184,9 +184,7 @@ impl Mesh {
             .map(|f| f.map(|k| vertices_m[k as usize]))
             .collect();
         let (bvh, built) = TriangleBvh::build(&tris, DVec3::ZERO, bounding_radius_m);
-        let bytes = bvh.heap_bytes()
-            + vertices_m.len() * 24
-            + facets.len() * (12 + 24 + 8 + 24);
+        let bytes = bvh.heap_bytes() + vertices_m.len() * 24 + facets.len() * (12 + 24 + 8 + 24);
         let report = MeshReport {
             vertices: vertices_m.len(),
             facets: facets.len(),
@@ -318,7 +316,10 @@ fn orient(v: &[DVec3], facets: &mut [[u32; 3]]) -> Result<Orientation, String> {
     for (i, f) in facets.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (f[k], f[(k + 1) % 3]);
-            edges.entry((a.min(b), a.max(b))).or_default().push(i as u32);
+            edges
+                .entry((a.min(b), a.max(b)))
+                .or_default()
+                .push(i as u32);
         }
     }
     let mut open_edges = 0;
@@ -352,7 +353,11 @@ fn orient(v: &[DVec3], facets: &mut [[u32; 3]]) -> Result<Orientation, String> {
         queue.push_back(seed as u32);
         while let Some(i) = queue.pop_front() {
             let f = facets[i as usize];
-            let f_now = if state[i as usize] == 2 { [f[0], f[2], f[1]] } else { f };
+            let f_now = if state[i as usize] == 2 {
+                [f[0], f[2], f[1]]
+            } else {
+                f
+            };
             for k in 0..3 {
                 let (a, b) = (f_now[k], f_now[(k + 1) % 3]);
                 let on = &edges[&(a.min(b), a.max(b))];
@@ -427,10 +432,9 @@ fn read_obj(path: &Path) -> Result<Read, String> {
     let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
     let mut reader = std::io::BufReader::new(file);
     // Materials are not ours (the reflectance comes from the scene file).
-    let (models, _) = tobj::load_obj_buf(&mut reader, &opts, |_| {
-        Err(tobj::LoadError::OpenFileFailed)
-    })
-    .map_err(|e| format!("not a readable OBJ file ({e})"))?;
+    let (models, _) =
+        tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::OpenFileFailed))
+            .map_err(|e| format!("not a readable OBJ file ({e})"))?;
     let (mut vertices, mut facets) = (Vec::new(), Vec::new());
     for m in models {
         let base = vertices.len() as u32;
@@ -465,15 +469,11 @@ fn read_ply(path: &Path) -> Result<Read, String> {
             _ => return None,
         })
     };
-    let vertex_el = ply
-        .payload
-        .get("vertex")
-        .ok_or("no \"vertex\" element")?;
+    let vertex_el = ply.payload.get("vertex").ok_or("no \"vertex\" element")?;
     let mut vertices = Vec::with_capacity(vertex_el.len());
     for (i, e) in vertex_el.iter().enumerate() {
-        let c = |k: &str| {
-            scalar(e.get(k)).ok_or_else(|| format!("vertex {}: no numeric {k:?}", i + 1))
-        };
+        let c =
+            |k: &str| scalar(e.get(k)).ok_or_else(|| format!("vertex {}: no numeric {k:?}", i + 1));
         vertices.push([c("x")?, c("y")?, c("z")?]);
     }
     let face_el = ply.payload.get("face").ok_or("no \"face\" element")?;
@@ -505,7 +505,12 @@ fn read_ply(path: &Path) -> Result<Read, String> {
                 }
             }
             Property::ListUChar(l) => poly.extend(l.iter().map(|&k| k as u32)),
-            _ => return Err(format!("face {}: vertex_indices is not a list of integers", i + 1)),
+            _ => {
+                return Err(format!(
+                    "face {}: vertex_indices is not a list of integers",
+                    i + 1
+                ));
+            }
         }
         fan(&poly, &mut facets);
     }
@@ -584,7 +589,8 @@ pub fn geodesic_sphere(radius_m: f64, n: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
     let n = n.max(1);
     for f in faces {
         let [a, b, c] = f.map(|k| ico[k]);
-        let at = |i: u32, j: u32| a + (b - a) * (i as f64 / n as f64) + (c - a) * (j as f64 / n as f64);
+        let at =
+            |i: u32, j: u32| a + (b - a) * (i as f64 / n as f64) + (c - a) * (j as f64 / n as f64);
         let mut ids = vec![vec![0u32; n as usize + 1]; n as usize + 1];
         for i in 0..=n {
             for j in 0..=(n - i) {
@@ -634,10 +640,19 @@ mod tests {
         assert_eq!(m.report().flipped, f.len().div_ceil(3));
         assert!(m.volume_m3() > 0.0);
         // Every facet turned inside out: all flipped back.
-        let inside_out: Vec<_> = geodesic_sphere(1.0, 4).1.into_iter().map(|t| [t[0], t[2], t[1]]).collect();
+        let inside_out: Vec<_> = geodesic_sphere(1.0, 4)
+            .1
+            .into_iter()
+            .map(|t| [t[0], t[2], t[1]])
+            .collect();
         let m = Mesh::new(v, inside_out.clone()).unwrap();
         assert_eq!(m.report().flipped, inside_out.len());
-        assert!(m.normals().iter().zip(m.centroids_m()).all(|(n, c)| n.dot(*c) > 0.0));
+        assert!(
+            m.normals()
+                .iter()
+                .zip(m.centroids_m())
+                .all(|(n, c)| n.dot(*c) > 0.0)
+        );
     }
 
     #[test]
@@ -647,10 +662,18 @@ mod tests {
         assert!(e.contains("no surface"), "{e}");
         let mut nan = v.clone();
         nan[3].y = f64::NAN;
-        assert!(Mesh::new(nan, f.clone()).unwrap_err().contains("vertex 4 is not finite"));
+        assert!(
+            Mesh::new(nan, f.clone())
+                .unwrap_err()
+                .contains("vertex 4 is not finite")
+        );
         let mut out = f.clone();
         out[5][1] = 9999;
-        assert!(Mesh::new(v.clone(), out).unwrap_err().contains("facet 6 names vertex 10000"));
+        assert!(
+            Mesh::new(v.clone(), out)
+                .unwrap_err()
+                .contains("facet 6 names vertex 10000")
+        );
         // A third facet on an edge.
         let mut nm = f.clone();
         let [a, b, _] = f[0];

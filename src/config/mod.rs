@@ -882,7 +882,11 @@ impl Validator<'_> {
     ) -> R<crate::scene::Placed> {
         let key = |f: &str| format!("body[{k}].{f}");
         if b.dem_map.is_some() || b.horizon_map.is_some() || b.normal_map.is_some() {
-            return self.err(&key("dem_map"), "given", "absent: relief is the first body's only");
+            return self.err(
+                &key("dem_map"),
+                "given",
+                "absent: relief is the first body's only",
+            );
         }
         let body = self.body(b)?;
         let raw_pos = self.need(
@@ -915,7 +919,11 @@ impl Validator<'_> {
             );
         }
         if (sun_m - position_m).length() <= r {
-            return self.err("sun.position_m", "inside a body", "a point outside every body");
+            return self.err(
+                "sun.position_m",
+                "inside a body",
+                "a point outside every body",
+            );
         }
         Ok(crate::scene::Placed {
             body,
@@ -1423,7 +1431,11 @@ impl Validator<'_> {
             s.depth = d;
         }
         for (key, v, field) in [
-            ("render.raycast_samples", r.raycast_samples, &mut s.raycast_samples),
+            (
+                "render.raycast_samples",
+                r.raycast_samples,
+                &mut s.raycast_samples,
+            ),
             (
                 "render.raycast_edge_samples",
                 r.raycast_edge_samples,

@@ -224,7 +224,13 @@ mod tests {
         assert!(bvh.occluded(origin, DVec3::X, f64::INFINITY));
         assert!(!bvh.occluded(origin, DVec3::X, 1e7 - 300.0));
         // Parity: inside crosses once, outside twice or never.
-        assert_eq!(bvh.crossings(c + DVec3::new(1.0, 2.0, 3.0), DVec3::new(0.3, 0.5, 0.81).normalize()), 1);
+        assert_eq!(
+            bvh.crossings(
+                c + DVec3::new(1.0, 2.0, 3.0),
+                DVec3::new(0.3, 0.5, 0.81).normalize()
+            ),
+            1
+        );
         assert_eq!(bvh.crossings(origin, DVec3::X), 2);
         // Axis-aligned rays with negative zeros in their direction.
         let down = bvh.closest(c + DVec3::new(0.0, 0.0, 1e4), -DVec3::Z, f64::INFINITY);

@@ -134,7 +134,12 @@ pub fn direct(mesh: &Mesh, sun_m: DVec3) -> Vec<f64> {
 
 /// The irradiance scattered onto each facet at each order `1..=orders` (Eq. 9, Jacobi), from
 /// the direct irradiance `direct` and the Bond albedo `rho`.
-pub fn scattered_by_order(ff: &FormFactors, direct: &[f64], rho: f64, orders: u32) -> Vec<Vec<f64>> {
+pub fn scattered_by_order(
+    ff: &FormFactors,
+    direct: &[f64],
+    rho: f64,
+    orders: u32,
+) -> Vec<Vec<f64>> {
     let mut out = Vec::with_capacity(orders as usize);
     let mut b: Vec<f64> = direct.iter().map(|e| rho * e).collect();
     for _ in 0..orders {
@@ -224,20 +229,37 @@ mod tests {
     fn once_scattered_light_is_uniform_in_a_spherical_bowl_and_orders_sum_geometrically() {
         // A hemispherical bowl lit from 40 deg above its rim: its rim shadows part of it.
         let m = bowl(24, 0.0);
-        assert!(m.normals().iter().zip(m.centroids_m()).all(|(n, c)| n.dot(*c) < 0.0));
+        assert!(
+            m.normals()
+                .iter()
+                .zip(m.centroids_m())
+                .all(|(n, c)| n.dot(*c) < 0.0)
+        );
         let sun = DVec3::new(40f64.to_radians().cos(), 0.0, 40f64.to_radians().sin()) * 1.5e11;
         let e = direct(&m, sun);
         let lit = e.iter().filter(|&&x| x > 0.0).count();
-        assert!(lit > m.facets().len() / 4 && lit < m.facets().len() * 3 / 4, "{lit}");
+        assert!(
+            lit > m.facets().len() / 4 && lit < m.facets().len() * 3 / 4,
+            "{lit}"
+        );
         let ff = FormFactors::new(&m);
         let rho = 0.3;
         let orders = scattered_by_order(&ff, &e, rho, 6);
         // Order 1: uniform (cos cos / (pi r^2) = 1 / (4 pi R^2) between points of a sphere).
         let r1 = &orders[0];
         let mean = r1.iter().sum::<f64>() / r1.len() as f64;
-        let spread = r1.iter().map(|x| (x / mean - 1.0).abs()).fold(0.0, f64::max);
-        eprintln!("bowl: {} facets, once-scattered spread {spread:.2e}", m.facets().len());
-        assert!(spread < 0.01, "once-scattered irradiance varies by {spread:.2e}");
+        let spread = r1
+            .iter()
+            .map(|x| (x / mean - 1.0).abs())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "bowl: {} facets, once-scattered spread {spread:.2e}",
+            m.facets().len()
+        );
+        assert!(
+            spread < 0.01,
+            "once-scattered irradiance varies by {spread:.2e}"
+        );
         // The power leaving the bowl's facets once, over the whole sphere's area.
         let a = m.areas_m2();
         let power: f64 = e.iter().zip(a).map(|(x, a)| rho * x * a).sum();
@@ -263,6 +285,9 @@ mod tests {
         // Half the facets lit; the disk's irradiance integrated is pi R^2.
         let a = m.areas_m2();
         let power: f64 = e.iter().zip(a).map(|(x, a)| x * a).sum();
-        assert!((power / (std::f64::consts::PI * 1e6) - 1.0).abs() < 0.01, "{power}");
+        assert!(
+            (power / (std::f64::consts::PI * 1e6) - 1.0).abs() < 0.01,
+            "{power}"
+        );
     }
 }

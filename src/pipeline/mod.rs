@@ -117,17 +117,15 @@ impl FrameMaker {
                 scene.others.len()
             ));
         }
-        let spheres: Vec<(glam::DVec3, f64)> = std::iter::once((
-            glam::DVec3::ZERO,
-            scene.body.shape.bounding_radius_m(),
-        ))
-        .chain(
-            placements
-                .iter()
-                .zip(&scene.others)
-                .map(|((p, _), o)| (*p, o.body.shape.bounding_radius_m())),
-        )
-        .collect();
+        let spheres: Vec<(glam::DVec3, f64)> =
+            std::iter::once((glam::DVec3::ZERO, scene.body.shape.bounding_radius_m()))
+                .chain(
+                    placements
+                        .iter()
+                        .zip(&scene.others)
+                        .map(|((p, _), o)| (*p, o.body.shape.bounding_radius_m())),
+                )
+                .collect();
         for i in 0..spheres.len() {
             for j in i + 1..spheres.len() {
                 if (spheres[i].0 - spheres[j].0).length() <= spheres[i].1 + spheres[j].1 {
@@ -139,7 +137,9 @@ impl FrameMaker {
         }
         for (k, (_, q)) in placements.iter().enumerate() {
             if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
-                return bad(format!("bodies[{k}] attitude {q:?} is not a unit quaternion"));
+                return bad(format!(
+                    "bodies[{k}] attitude {q:?} is not a unit quaternion"
+                ));
             }
         }
         for (o, (p, q)) in self.config.scene.others.iter_mut().zip(placements) {

@@ -229,7 +229,9 @@ impl<'a> Tracer<'a> {
         let d_sun2 = to_sun.length_squared();
         let s = to_sun / d_sun2.sqrt();
         if which > 0 {
-            return hit(self.shade_other(which - 1, p, dir, s, shape_normal, d_sun2) * cos_eps * solid);
+            return hit(self.shade_other(which - 1, p, dir, s, shape_normal, d_sun2)
+                * cos_eps
+                * solid);
         }
         let body = &self.scene.body;
         let up = p.normalize();
@@ -317,7 +319,12 @@ impl<'a> Tracer<'a> {
         if self.eclipsed(p, s, 0) {
             return None;
         }
-        Some((g.mu0, g.mu, s.dot(-dir), self.k_px * g.mu0 * cos_eps / d_sun2 * solid))
+        Some((
+            g.mu0,
+            g.mu,
+            s.dot(-dir),
+            self.k_px * g.mu0 * cos_eps / d_sun2 * solid,
+        ))
     }
 
     /// The nearest surface on the line of sight `dir` (unit, B): its range [m], outward
@@ -361,8 +368,7 @@ impl<'a> Tracer<'a> {
         }
         self.scene.others.iter().enumerate().any(|(k, o)| {
             k + 1 != which
-                && o
-                    .body
+                && o.body
                     .shape
                     .intersect(o.to_body(p), o.b_from_body.inverse() * s)
                     .is_some()
@@ -371,7 +377,15 @@ impl<'a> Tracer<'a> {
 
     /// `(P/L)` per px^2 per unit of `cos(eps) dOmega` of the placed body `k` at its point `p`
     /// (B) whose outward normal is `normal` (B), seen along `dir`, the Sun at `s` and `d_sun2`.
-    fn shade_other(&self, k: usize, p: DVec3, dir: DVec3, s: DVec3, normal: DVec3, d_sun2: f64) -> f64 {
+    fn shade_other(
+        &self,
+        k: usize,
+        p: DVec3,
+        dir: DVec3,
+        s: DVec3,
+        normal: DVec3,
+        d_sun2: f64,
+    ) -> f64 {
         let o = &self.scene.others[k];
         let g = Local::new(normal, s, -dir);
         if g.mu <= 0.0 || g.mu0 <= 0.0 {

@@ -136,7 +136,8 @@ pub fn render(
             value: total,
         });
     }
-    let rays: u64 = first.iter().map(|f| f.3).sum::<u64>() + refined.iter().map(|r| r.2).sum::<u64>();
+    let rays: u64 =
+        first.iter().map(|f| f.3).sum::<u64>() + refined.iter().map(|r| r.2).sum::<u64>();
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
         phase_deg: pose

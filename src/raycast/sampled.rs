@@ -79,13 +79,19 @@ pub fn render(
         None => Tracer::new(scene, pose),
     };
     let n = settings.raycast_samples;
-    // Bands of TILE rows, in tiles of TILE x TILE pixels: a tile whose lines of sight all miss
-    // the bounding sphere casts nothing.
-    let bands: Vec<Vec<(f64, f64, u8, u64)>> = (0..h.div_ceil(TILE))
-        .into_par_iter()
-        .map(|band| {
-            let rows = TILE.min(h - band * TILE);
-            let mut out = vec![(0.0, f64::NAN, MISS, 0); rows * w];
+    // Flat per-pixel buffers, filled in bands of TILE rows, in tiles of TILE x TILE pixels: a
+    // tile whose lines of sight all miss every body's bounding sphere casts nothing.
+    let mut pl = vec![0.0; w * h];
+    let mut depth = vec![f64::NAN; w * h];
+    let mut class = vec![MISS; w * h];
+    let first_rays: u64 = pl
+        .par_chunks_mut(TILE * w)
+        .zip(depth.par_chunks_mut(TILE * w))
+        .zip(class.par_chunks_mut(TILE * w))
+        .enumerate()
+        .map(|(band, ((pl, depth), class))| {
+            let rows = pl.len() / w;
+            let mut rays = 0;
             for tile in 0..w.div_ceil(TILE) {
                 let (u0, v0) = (tile * TILE, band * TILE);
                 if tracer.coverage(u0 as f64, v0 as f64, TILE as f64) == Coverage::Empty {
@@ -93,15 +99,17 @@ pub fn render(
                 }
                 for j in 0..rows {
                     for i in u0..(u0 + TILE).min(w) {
-                        out[j * w + i] = cast_pixel(&tracer, i as f64, (v0 + j) as f64, n);
+                        let (v, d, c, r) = cast_pixel(&tracer, i as f64, (v0 + j) as f64, n);
+                        (pl[j * w + i], depth[j * w + i], class[j * w + i]) = (v, d, c);
+                        rays += r;
                     }
                 }
             }
-            out
+            rays
         })
-        .collect();
-    let first: Vec<(f64, f64, u8, u64)> = bands.into_iter().flatten().collect();
+        .sum();
     let t_first = t0.elapsed();
+    // Pixels where the light changes: their own class or a neighbour's differs.
     let mixed = |p: usize| {
         let (i, j) = ((p % w) as i64, (p / w) as i64);
         let mut mask = 0u8;
@@ -109,26 +117,32 @@ pub fn render(
             for di in -1..=1 {
                 let (x, y) = (i + di, j + dj);
                 if x >= 0 && y >= 0 && x < w as i64 && y < h as i64 {
-                    mask |= first[y as usize * w + x as usize].2;
+                    mask |= class[y as usize * w + x as usize];
                 }
             }
         }
         mask.count_ones() > 1
     };
     let edge_n = settings.raycast_edge_samples.max(n);
-    let refined: Vec<(f64, f64, u64, bool)> = (0..w * h)
-        .into_par_iter()
-        .with_min_len(64)
-        .map(|p| {
-            if edge_n > n && mixed(p) {
-                let (pl, d, _, rays) = cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, edge_n);
-                (pl, d, rays, true)
-            } else {
-                (first[p].0, first[p].1, 0, false)
-            }
-        })
+    let edges: Vec<usize> = if edge_n > n {
+        (0..w * h)
+            .into_par_iter()
+            .with_min_len(1024)
+            .filter(|&p| mixed(p))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let refined: Vec<(f64, f64, u8, u64)> = edges
+        .par_iter()
+        .map(|&p| cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, edge_n))
         .collect();
-    let pl: Vec<f64> = refined.iter().map(|r| r.0).collect();
+    let mut rays = first_rays;
+    for (&p, r) in edges.iter().zip(&refined) {
+        pl[p] = r.0;
+        depth[p] = r.1;
+        rays += r.3;
+    }
     let total: f64 = pl.iter().sum();
     if !total.is_finite() {
         return Err(RenderError::NonFinite {
@@ -136,8 +150,6 @@ pub fn render(
             value: total,
         });
     }
-    let rays: u64 =
-        first.iter().map(|f| f.3).sum::<u64>() + refined.iter().map(|r| r.2).sum::<u64>();
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
         phase_deg: pose
@@ -148,7 +160,7 @@ pub fn render(
             .acos()
             .to_degrees(),
         points_sampled: w * h,
-        points_kept: refined.iter().filter(|r| r.3).count(),
+        points_kept: edges.len(),
         surface_samples: rays as usize,
         covered_px: pl.iter().filter(|&&x| x > 0.0).count() as f64,
         total_pl_points: total,
@@ -163,9 +175,7 @@ pub fn render(
     Ok(Frame {
         width: w,
         height: h,
-        depth_m: settings
-            .depth
-            .then(|| refined.iter().map(|r| r.1).collect()),
+        depth_m: settings.depth.then_some(depth),
         pl,
         stats,
     })

@@ -306,6 +306,9 @@ impl FrameThread {
     }
 
     fn frame(&mut self, job: Job) {
+        // Watchers wait while this frame is in flight (until its ack, or its error).
+        let gate = self.shared.views.gate.clone();
+        let _in_flight = gate.enter();
         let render_start = Instant::now();
         let placed = match &job.bodies {
             Some(b) => self.maker.place_bodies(b),

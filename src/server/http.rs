@@ -35,6 +35,10 @@ pub async fn serve(listener: TcpListener, shared: Arc<Shared>) {
             axum::routing::put(put_calibration).get(get_calibration),
         )
         .route("/config", get(get_config).put(put_config))
+        .layer(axum::middleware::from_fn_with_state(
+            shared.clone(),
+            between_frames,
+        ))
         .with_state(shared);
     let r = axum::serve(listener, app)
         .with_graceful_shutdown(async move {
@@ -44,6 +48,17 @@ pub async fn serve(listener: TcpListener, shared: Arc<Shared>) {
     if let Err(e) = r {
         tracing::error!("HTTP server: {e}");
     }
+}
+
+/// Every request is answered between frames ([`super::views::FrameGate`]): it waits while a
+/// frame is in flight (at most 250 ms), so that watchers never take from the frame loop.
+async fn between_frames(
+    State(s): State<Arc<Shared>>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    s.views.gate.idle().await;
+    next.run(req).await
 }
 
 async fn status(State(s): State<Arc<Shared>>) -> Response {

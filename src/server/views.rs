@@ -95,6 +95,8 @@ struct Inner {
 pub struct Views {
     inner: Mutex<Inner>,
     jobs: std::sync::mpsc::SyncSender<Job>,
+    /// Frames in flight: the worker makes images between them.
+    pub gate: Arc<FrameGate>,
 }
 
 impl Views {
@@ -104,6 +106,7 @@ impl Views {
         let views = Arc::new(Views {
             inner: Mutex::new(Inner::default()),
             jobs: tx,
+            gate: Arc::new(FrameGate::default()),
         });
         let weak = Arc::downgrade(&views);
         std::thread::Builder::new()
@@ -172,6 +175,61 @@ impl Views {
     }
 }
 
+/// Whether the frame thread has a frame in flight (from taking a pose to its ack). What
+/// serves watchers, HTTP and this worker, waits for it to clear before working (at most
+/// [`FrameGate::MAX_WAIT`]): they then take no CPU, memory bandwidth or kernel time from a
+/// frame being made, only from the idle time between frames (issue 19: watching never
+/// disturbs the loop). The flag is one atomic: the frame thread never waits on a lock the
+/// background threads hold.
+#[derive(Debug, Default)]
+pub struct FrameGate {
+    busy: std::sync::atomic::AtomicBool,
+}
+
+impl FrameGate {
+    /// The longest a watcher waits for the frames (in free-running mode at full rate there
+    /// may be no gap: watchers are then served after this wait, at their low priority).
+    pub const MAX_WAIT: std::time::Duration = std::time::Duration::from_millis(250);
+    const POLL: std::time::Duration = std::time::Duration::from_millis(3);
+
+    /// Marks a frame in flight until the guard drops.
+    pub fn enter(&self) -> FrameGuard<'_> {
+        self.busy.store(true, std::sync::atomic::Ordering::Release);
+        FrameGuard(self)
+    }
+
+    fn busy(&self) -> bool {
+        self.busy.load(std::sync::atomic::Ordering::Acquire)
+    }
+
+    /// Waits (asynchronously) until no frame is in flight, or `MAX_WAIT`.
+    pub async fn idle(&self) {
+        let start = std::time::Instant::now();
+        while self.busy() && start.elapsed() < Self::MAX_WAIT {
+            tokio::time::sleep(Self::POLL).await;
+        }
+    }
+
+    /// Blocks the calling (background) thread until no frame is in flight, or `MAX_WAIT`.
+    pub fn idle_blocking(&self) {
+        let start = std::time::Instant::now();
+        while self.busy() && start.elapsed() < Self::MAX_WAIT {
+            std::thread::sleep(Self::POLL);
+        }
+    }
+}
+
+/// A frame in flight ([`FrameGate::enter`]).
+pub struct FrameGuard<'a>(&'a FrameGate);
+
+impl Drop for FrameGuard<'_> {
+    fn drop(&mut self) {
+        self.0
+            .busy
+            .store(false, std::sync::atomic::Ordering::Release);
+    }
+}
+
 /// The answer when too many requests wait.
 pub const BUSY: &str = "too many requests wait for this image";
 
@@ -198,6 +256,7 @@ fn worker(rx: std::sync::mpsc::Receiver<Job>, views: Weak<Views>) {
         .build();
     while let Ok(job) = rx.recv() {
         let Some(views) = views.upgrade() else { return };
+        views.gate.idle_blocking();
         let k = job.view as usize;
         let answer = match &pool {
             Ok(p) => p.install(|| make(&views, &job)),

@@ -143,17 +143,9 @@ fn gather(images: &[Image], n: u32) -> Result<Data, InversionError> {
         let fixed_var = read * read + e_step * e_step / 12.0;
         let max_dn = det.max_dn() as u16;
         for p in 0..w * h {
-            let (i, j) = ((p % w) as i64, (p / w) as i64);
-            let interior = (-1..=1).all(|dj| {
-                (-1..=1).all(|di| {
-                    let (x, y) = (i + di, j + dj);
-                    x >= 0
-                        && y >= 0
-                        && x < w as i64
-                        && y < h as i64
-                        && per_px[y as usize * w + x as usize].is_some()
-                })
-            });
+            let (i, j) = (p % w, p / w);
+            let border = i == 0 || j == 0 || i + 1 == w || j + 1 == h;
+            let interior = !border && crate::raycast::around(p, w, h).all(|q| per_px[q].is_some());
             if !interior || im.dn[p] >= max_dn {
                 continue;
             }

@@ -421,6 +421,15 @@ impl<'a> Tracer<'a> {
     }
 }
 
+/// The pixel `p` of a `w x h` image (row-major) and its neighbours inside the image (up to
+/// eight): where the ray casters look for edges of the light around a pixel.
+pub fn around(p: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (i, j) = (p % w, p / w);
+    let (x0, x1) = (i.saturating_sub(1), (i + 1).min(w - 1));
+    let (y0, y1) = (j.saturating_sub(1), (j + 1).min(h - 1));
+    (y0..=y1).flat_map(move |y| (x0..=x1).map(move |x| y * w + x))
+}
+
 /// The angle between two unit vectors [rad], accurate when it is tiny (where `acos` of the dot
 /// product is not: a cell 1/256 px wide of a far body spans 4e-8 rad).
 #[inline]

@@ -281,19 +281,7 @@ pub fn render(
     });
     let first: Vec<f64> = firsts.iter().map(|f| f.0).collect();
     let depth: Vec<f64> = firsts.iter().map(|f| f.1).collect();
-    let near_edge = |p: usize| {
-        let (i, j) = ((p % w) as i64, (p / w) as i64);
-        (-1..=1).any(|dj| {
-            (-1..=1).any(|di| {
-                let (x, y) = (i + di, j + dj);
-                x >= 0
-                    && y >= 0
-                    && x < w as i64
-                    && y < h as i64
-                    && firsts[y as usize * w + x as usize].2
-            })
-        })
-    };
+    let near_edge = |p: usize| super::around(p, w, h).any(|q| firsts[q].2);
     let mut lit: Vec<f64> = first.iter().copied().filter(|&x| x > 0.0).collect();
     let floor = if lit.is_empty() {
         f64::MIN_POSITIVE

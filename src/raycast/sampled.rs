@@ -111,17 +111,10 @@ pub fn render(
     let t_first = t0.elapsed();
     // Pixels where the light changes: their own class or a neighbour's differs.
     let mixed = |p: usize| {
-        let (i, j) = ((p % w) as i64, (p / w) as i64);
-        let mut mask = 0u8;
-        for dj in -1..=1 {
-            for di in -1..=1 {
-                let (x, y) = (i + di, j + dj);
-                if x >= 0 && y >= 0 && x < w as i64 && y < h as i64 {
-                    mask |= class[y as usize * w + x as usize];
-                }
-            }
-        }
-        mask.count_ones() > 1
+        super::around(p, w, h)
+            .fold(0u8, |mask, q| mask | class[q])
+            .count_ones()
+            > 1
     };
     let edge_n = settings.raycast_edge_samples.max(n);
     let edges: Vec<usize> = if edge_n > n {

@@ -513,3 +513,38 @@ fn scattered_light_enters_the_image_with_the_power_the_facets_reflect() {
         .count();
     assert!(shadowed_lit > 500, "{shadowed_lit}");
 }
+
+#[test]
+fn one_renderer_keeps_each_meshs_own_form_factors() {
+    // A renderer caches form factors per mesh: a second mesh gets its own, even if the first
+    // is gone (its address could be reused), and the image equals a fresh renderer's.
+    let dir = tempdir("mesh_cache");
+    let path = bowl_obj(&dir, 500.0);
+    let spec = SceneSpec {
+        resolution: [64, 64],
+        focal_m: 0.0352,
+        camera_m: [0.0, 0.0, 5e4],
+        sun_m: [AU * 0.77, 0.0, AU * 0.64],
+        ..Default::default()
+    };
+    let text = spec.toml().replace(
+        &format!("radius_m = {R_MOON}\n"),
+        &format!(
+            "shape = \"mesh\"\nmesh = {{ path = \"{}\", units = \"m\" }}\n",
+            path.display()
+        ),
+    );
+    let mut r = Renderer::new(0).unwrap();
+    let mut settings = Settings::default();
+    settings.scattering_orders = 2;
+    {
+        let bowl = optistim::config::parse(&text, "<test>").unwrap();
+        r.render(&bowl.scene, &bowl.pose, &settings).unwrap();
+    }
+    let cfg = sphere_scene();
+    let (v, f) = geodesic_sphere(R_MOON, 8);
+    let other = with_mesh(&cfg, Mesh::new(v, f).unwrap());
+    let cached = r.render(&other.scene, &other.pose, &settings).unwrap().pl;
+    let fresh = render(&other, &settings);
+    assert_eq!(cached, fresh);
+}

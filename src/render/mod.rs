@@ -132,8 +132,12 @@ pub struct Renderer {
     pool: rayon::ThreadPool,
     threads: usize,
     buf: Buffers,
-    /// A mesh's form factors (radiosity), by the address of the mesh they belong to.
-    form_factors: Option<(usize, std::sync::Arc<crate::irradiance::FormFactors>)>,
+    /// A mesh's form factors (radiosity), with the mesh they belong to (held, so that its
+    /// address cannot be reused by another mesh while the cache names it).
+    form_factors: Option<(
+        std::sync::Arc<crate::body::Mesh>,
+        std::sync::Arc<crate::irradiance::FormFactors>,
+    )>,
 }
 
 impl Renderer {
@@ -178,15 +182,14 @@ impl Renderer {
             let orders = settings.scattering_orders;
             let ff = if orders > 0 {
                 // The form factors depend on the mesh alone: made once per mesh.
-                let key = Arc::as_ptr(mesh) as usize;
                 match &self.form_factors {
-                    Some((k, ff)) if *k == key => Some(ff.clone()),
+                    Some((m, ff)) if Arc::ptr_eq(m, mesh) => Some(ff.clone()),
                     _ => {
                         let ff = Arc::new(
                             self.pool
                                 .install(|| crate::irradiance::FormFactors::new(mesh)),
                         );
-                        self.form_factors = Some((key, ff.clone()));
+                        self.form_factors = Some((mesh.clone(), ff.clone()));
                         Some(ff)
                     }
                 }

@@ -535,8 +535,10 @@ fn one_renderer_keeps_each_meshs_own_form_factors() {
         ),
     );
     let mut r = Renderer::new(0).unwrap();
-    let mut settings = Settings::default();
-    settings.scattering_orders = 2;
+    let settings = Settings {
+        scattering_orders: 2,
+        ..Settings::default()
+    };
     {
         let bowl = optistim::config::parse(&text, "<test>").unwrap();
         r.render(&bowl.scene, &bowl.pose, &settings).unwrap();

@@ -314,9 +314,14 @@ fn write_formats(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
 
 /// The scene text of `spec` with the mesh file `path` (in km) as its body.
 fn mesh_toml(spec: &SceneSpec, path: &str) -> String {
+    mesh_toml_in(spec, path, "km")
+}
+
+/// The scene text of `spec` with the mesh file `path` in `units` as its body.
+fn mesh_toml_in(spec: &SceneSpec, path: &str, units: &str) -> String {
     spec.toml().replace(
         &format!("radius_m = {R_MOON}\n"),
-        &format!("shape = \"mesh\"\nmesh = {{ path = \"{path}\", units = \"km\" }}\n"),
+        &format!("shape = \"mesh\"\nmesh = {{ path = \"{path}\", units = \"{units}\" }}\n"),
     )
 }
 
@@ -466,13 +471,7 @@ fn scattered_light_enters_the_image_with_the_power_the_facets_reflect() {
         sun_m: [AU * elev.cos(), 0.0, AU * elev.sin()],
         ..Default::default()
     };
-    let text = spec.toml().replace(
-        &format!("radius_m = {R_MOON}\n"),
-        &format!(
-            "shape = \"mesh\"\nmesh = {{ path = \"{}\", units = \"m\" }}\n",
-            path.display()
-        ),
-    );
+    let text = mesh_toml_in(&spec, path.to_str().unwrap(), "m");
     let cfg = optistim::config::parse(&text, "<test>").unwrap_or_else(|e| panic!("{e}"));
     let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
         unreachable!()
@@ -527,13 +526,7 @@ fn one_renderer_keeps_each_meshs_own_form_factors() {
         sun_m: [AU * 0.77, 0.0, AU * 0.64],
         ..Default::default()
     };
-    let text = spec.toml().replace(
-        &format!("radius_m = {R_MOON}\n"),
-        &format!(
-            "shape = \"mesh\"\nmesh = {{ path = \"{}\", units = \"m\" }}\n",
-            path.display()
-        ),
-    );
+    let text = mesh_toml_in(&spec, path.to_str().unwrap(), "m");
     let mut r = Renderer::new(0).unwrap();
     let settings = Settings {
         scattering_orders: 2,

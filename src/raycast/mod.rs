@@ -262,7 +262,7 @@ impl<'a> Tracer<'a> {
         {
             return hit(0.0);
         }
-        // A mesh shadows itself (SLIM Sec. 3: a ray from the facet to the Sun).
+        // A mesh shadows itself (SLIM Sec. 6.1: a ray from the facet to the Sun).
         if let Shape::Mesh(m) = &body.shape
             && m.shadows(p, normal, s)
         {

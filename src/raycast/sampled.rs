@@ -1,5 +1,5 @@
-//! The ray caster's frame, what mesh bodies render with (SLIM Sec. 3: rays from the camera,
-//! facet by facet, shadow rays to the Sun): each pixel's `(P/L)` is the mean of a stratified
+//! The ray caster's frame, what mesh bodies render with (SLIM Sec. 6.1: rays from the camera,
+//! facet by facet, shadow rays to the Sun): each pixel's `(P/L)` is the mean of a regular
 //! `n x n` grid of ray casts over its footprint ([`super::Tracer::cast`], per px^2, so the
 //! mean is the footprint's integral: energy-conserving at any `n`), with
 //! `n = render.raycast_samples`; pixels where the light changes, the limb or the edge of the

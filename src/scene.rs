@@ -36,6 +36,17 @@ pub struct Placed {
     pub b_from_body: DQuat,
 }
 
+/// The first pair `(i, j)`, `i < j`, of bodies whose bounding spheres meet, the bodies given as
+/// `(centre [m], bounding radius [m])` in B, the first body first: the smallest `j` that
+/// meets any body before it. Bodies may not overlap (`[[body]]`, the pose's `bodies`).
+pub fn overlapping(spheres: &[(DVec3, f64)]) -> Option<(usize, usize)> {
+    (1..spheres.len()).find_map(|j| {
+        (0..j)
+            .find(|&i| (spheres[i].0 - spheres[j].0).length() <= spheres[i].1 + spheres[j].1)
+            .map(|i| (i, j))
+    })
+}
+
 impl Placed {
     /// A point [m] of B in the body's own frame.
     #[inline]

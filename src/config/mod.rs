@@ -906,12 +906,16 @@ impl Validator<'_> {
             }
         };
         let r = body.shape.bounding_radius_m();
-        let apart = |c: glam::DVec3, rc: f64| (position_m - c).length() > r + rc;
-        if !apart(glam::DVec3::ZERO, first.shape.bounding_radius_m())
-            || others
-                .iter()
-                .any(|o| !apart(o.position_m, o.body.shape.bounding_radius_m()))
-        {
+        let spheres: Vec<(glam::DVec3, f64)> =
+            std::iter::once((glam::DVec3::ZERO, first.shape.bounding_radius_m()))
+                .chain(
+                    others
+                        .iter()
+                        .map(|o| (o.position_m, o.body.shape.bounding_radius_m())),
+                )
+                .chain([(position_m, r)])
+                .collect();
+        if crate::scene::overlapping(&spheres).is_some() {
             return self.err(
                 &key("position_m"),
                 raw_pos,

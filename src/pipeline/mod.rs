@@ -126,14 +126,10 @@ impl FrameMaker {
                         .map(|((p, _), o)| (*p, o.body.shape.bounding_radius_m())),
                 )
                 .collect();
-        for i in 0..spheres.len() {
-            for j in i + 1..spheres.len() {
-                if (spheres[i].0 - spheres[j].0).length() <= spheres[i].1 + spheres[j].1 {
-                    return bad(format!(
-                        "bodies {i} and {j} overlap (their bounding spheres meet)"
-                    ));
-                }
-            }
+        if let Some((i, j)) = crate::scene::overlapping(&spheres) {
+            return bad(format!(
+                "bodies {i} and {j} overlap (their bounding spheres meet)"
+            ));
         }
         for (k, (_, q)) in placements.iter().enumerate() {
             if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {

@@ -254,21 +254,7 @@ impl<'a> Tracer<'a> {
             }
             _ => 0.0,
         };
-        if g.mu0 <= 0.0 {
-            return hit(scattered);
-        }
-        if let Some(terrain) = &self.terrain
-            && terrain.shadowed(up, s, self.displaced)
-        {
-            return hit(0.0);
-        }
-        // A mesh shadows itself (SLIM Sec. 6.1: a ray from the facet to the Sun).
-        if let Shape::Mesh(m) = &body.shape
-            && m.shadows(p, normal, s)
-        {
-            return hit(scattered);
-        }
-        if self.eclipsed(p, s, 0) {
+        if g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s) {
             return hit(scattered);
         }
         let f_r = match &body.albedo_map {
@@ -303,20 +289,7 @@ impl<'a> Tracer<'a> {
         let d_sun2 = to_sun.length_squared();
         let s = to_sun / d_sun2.sqrt();
         let g = Local::new(normal, s, -dir);
-        if g.mu <= 0.0 || g.mu0 <= 0.0 {
-            return None;
-        }
-        if let Some(terrain) = &self.terrain
-            && terrain.shadowed(up, s, self.displaced)
-        {
-            return None;
-        }
-        if let Shape::Mesh(m) = &body.shape
-            && m.shadows(p, normal, s)
-        {
-            return None;
-        }
-        if self.eclipsed(p, s, 0) {
+        if g.mu <= 0.0 || g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s) {
             return None;
         }
         Some((
@@ -325,6 +298,25 @@ impl<'a> Tracer<'a> {
             s.dot(-dir),
             self.k_px * g.mu0 * cos_eps / d_sun2 * solid,
         ))
+    }
+
+    /// Whether the first body's surface point `p` (B; `up` its unit direction from the
+    /// centre, `normal` the normal the BRDF sees) sees the Sun's centre in the unit direction
+    /// `s`: no DEM relief ([`Terrain`]), no facet of its own mesh (SLIM Sec. 6.1: a ray from
+    /// the facet to the Sun) and no other body ([`Tracer::eclipsed`]) in the way.
+    #[inline]
+    fn sees_sun(&self, p: DVec3, up: DVec3, normal: DVec3, s: DVec3) -> bool {
+        if let Some(terrain) = &self.terrain
+            && terrain.shadowed(up, s, self.displaced)
+        {
+            return false;
+        }
+        if let Shape::Mesh(m) = &self.scene.body.shape
+            && m.shadows(p, normal, s)
+        {
+            return false;
+        }
+        !self.eclipsed(p, s, 0)
     }
 
     /// The nearest surface on the line of sight `dir` (unit, B): its range [m], outward

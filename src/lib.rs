@@ -26,6 +26,7 @@
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
 //! | [`trajectory`] | pose streams (CSV, JSON lines) of `../shared/trajectories/` |
 //! | [`io`] | FITS and PNG outputs (in memory too), grayscale PNG input (photographs), SHA-256 content hashes |
+//! | [`background`] | cooperative pause points: the daemon's background image work pauses between slices while a frame is in flight |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, access (token, non-loopback binds, scene folders), the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics (a background thread; images made once per frame by `views`), the recording |
 //! | [`app`] | the commands behind the binary: `render` (the quadrangle pipeline or `--reference`), `sweep` (the speed-accuracy front and its chart; `--fit` the planner's error model), `verify-budget` (the planner against the reference over a pose stream), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
@@ -70,6 +71,7 @@
 //! panics on input.
 
 pub mod app;
+pub mod background;
 pub mod body;
 pub mod brdf;
 pub mod camera;

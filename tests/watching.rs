@@ -29,9 +29,10 @@ const ENDPOINTS: [&str; 10] = [
 const CLIENTS: usize = 16;
 /// Each client's pause between requests [ms]: 20 requests per second each, 320 in all.
 const POLL_MS: u64 = 50;
-/// Rounds of 100 poses alone and 100 watched. The p99 of 100 poses is their second-slowest
-/// frame (a perilune frame of ~100 ms), so one round's p99 moves by several per cent with the
-/// machine alone; the median over six rounds is what is compared.
+/// Rounds of 100 poses alone and 100 watched, interleaved. The p99 of one round is its
+/// second-slowest frame (one of the ~15 perilune frames of 80-110 ms), which moves by
+/// +-15 % from round to round with the machine alone; the p99 of all 600 frames of each kind
+/// is what is compared.
 const ROUNDS: usize = 6;
 
 /// 100 poses spread over the two orbits (perilune, where frames cost most, included).
@@ -86,8 +87,7 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
     let _ = stream(&d);
     // Rounds alone and watched, interleaved, so that the machine's drift hits both alike.
     let (mut alone, mut watched) = (Vec::new(), Vec::new());
-    // Each round's p99 (its 100 poses); compared as the median over rounds, which one round
-    // hit by the machine's own hiccup cannot decide (a CI run once had a 229 ms outlier).
+    // Each round's p99 (its 100 poses), printed to show the spread.
     let (mut round_alone, mut round_watched) = (Vec::new(), Vec::new());
     let p99 = |v: &[f64]| optistim::stats::quantiles(&mut v.to_vec(), [0.99])[0];
     let stop = Arc::new(AtomicBool::new(false));
@@ -137,14 +137,14 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
     let presented = status["frames_presented"].as_u64().unwrap();
     let made = status["views"]["images_made"].as_u64().unwrap();
     let captures = status["views"]["camera_captures"].as_u64().unwrap();
+    let during = status["views"]["served_during_frames"].as_u64().unwrap();
     let q = |v: &mut Vec<f64>| optistim::stats::quantiles(v, [0.5, 0.99, 1.0]);
-    let median = |v: &[f64]| optistim::stats::quantiles(&mut v.to_vec(), [0.5])[0];
-    let (p99_alone, p99_watched) = (median(&round_alone), median(&round_watched));
-    let ([p50_alone, _, _], [p50_watched, _, _]) = (q(&mut alone), q(&mut watched));
+    let ([p50_alone, p99_alone, _], [p50_watched, p99_watched, _]) =
+        (q(&mut alone), q(&mut watched));
     eprintln!(
         "p99 pose -> presented: alone {p99_alone:.1} ms, with {CLIENTS} pollers {p99_watched:.1} \
-         ms (median {:.1} / {:.1}); {} requests answered ({:.0} MB); {made} images and \
-         {captures} camera captures made for {presented} frames",
+         ms (median {:.1} / {:.1}; per round {round_alone:.0?} / {round_watched:.0?}); {} requests answered ({:.0} MB); {made} images and \
+         {captures} camera captures made for {presented} frames; {during} waits for a gap ran out",
         p50_alone,
         p50_watched,
         answered.load(Ordering::Relaxed),
@@ -169,6 +169,6 @@ fn sixteen_pollers_leave_the_frame_latency_alone() {
     );
     assert!(
         p99_watched <= 1.10 * p99_alone,
-        "p99 (median over rounds) {p99_watched:.1} ms while watched, {p99_alone:.1} ms alone: {round_watched:?} vs {round_alone:?}"
+        "p99 {p99_watched:.1} ms while watched, {p99_alone:.1} ms alone; per round {round_watched:?} vs {round_alone:?}"
     );
 }

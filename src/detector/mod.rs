@@ -103,6 +103,9 @@ impl Detector {
             .par_chunks_mut(4096)
             .enumerate()
             .for_each(|(chunk, out)| {
+                // A watcher's capture pauses here while a frame is in flight (a no-op on
+                // the frame's own threads).
+                crate::background::checkpoint();
                 let base = chunk * 4096;
                 // One generator per stream for each fixed block of 4096 pixels (the fixed
                 // patterns' independent of the frame, the temporal noises' seeded by it); draws

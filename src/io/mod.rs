@@ -117,6 +117,9 @@ pub fn encode_png_gray(
     }
 }
 
+/// Rows encoded between pause points.
+const BAND_ROWS: usize = 64;
+
 /// A PNG in memory from its samples, packed as the colour type and depth say.
 fn encode_png(
     width: usize,
@@ -132,7 +135,15 @@ fn encode_png(
     // Fast deflate: these images are written per frame; size matters less than time.
     enc.set_compression(png::Compression::Fast);
     let mut w = enc.write_header()?;
-    w.write_image_data(data)?;
+    // In bands of rows, with a pause point between them for the daemon's background
+    // encoder (crate::background; nothing elsewhere).
+    let row_bytes = data.len() / height.max(1);
+    let mut stream = w.stream_writer_with_size((BAND_ROWS * row_bytes).max(1))?;
+    for band in data.chunks((BAND_ROWS * row_bytes).max(1)) {
+        crate::background::checkpoint();
+        std::io::Write::write_all(&mut stream, band)?;
+    }
+    stream.finish()?;
     w.finish()?;
     Ok(out)
 }
@@ -142,4 +153,31 @@ fn encode_png(
 pub fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::Digest;
     format!("{:x}", sha2::Sha256::digest(bytes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_png_encoded_in_bands_decodes_to_its_samples() {
+        // 150 rows: two full bands of BAND_ROWS and a partial one, with pauses counted.
+        let (w, h) = (37, 150);
+        let dn: Vec<u16> = (0..w * h).map(|k| (k * 7919 % 65536) as u16).collect();
+        let pauses = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let p = pauses.clone();
+        let (dn2, bytes) = std::thread::spawn(move || {
+            crate::background::install(std::sync::Arc::new(move || {
+                p.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            }));
+            let bytes = encode_png_gray(w, h, &dn, 16).unwrap();
+            (dn, bytes)
+        })
+        .join()
+        .unwrap();
+        assert_eq!(pauses.load(std::sync::atomic::Ordering::Relaxed), 3);
+        let (w2, h2, back) = decode_png_gray(Path::new("mem"), &bytes).unwrap();
+        assert_eq!((w2, h2), (w, h));
+        assert_eq!(back, dn2);
+    }
 }

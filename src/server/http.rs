@@ -5,7 +5,7 @@
 
 use super::Shared;
 use super::frames::Control;
-use super::views::{Get, View};
+use super::views::{FrameGate, Get, View};
 use crate::stimulator::calibration::Curve;
 use axum::Router;
 use axum::body::Bytes;
@@ -59,6 +59,26 @@ async fn between_frames(
 ) -> Response {
     s.views.gate.idle().await;
     next.run(req).await
+}
+
+/// An image's bytes sent in slices, each between frames: a few megabytes copied through
+/// the kernel to 16 watchers would otherwise take the frames' CPU. The whole body defers to
+/// the frames for at most [`FrameGate::MAX_WAIT`], then goes at its low priority.
+fn between_frames_body(png: Bytes, gate: Arc<FrameGate>) -> axum::body::Body {
+    const SLICE: usize = 256 << 10;
+    let until = std::time::Instant::now() + FrameGate::MAX_WAIT;
+    let slices = futures_util::stream::unfold(png, move |mut rest| {
+        let gate = gate.clone();
+        async move {
+            if rest.is_empty() {
+                return None;
+            }
+            gate.idle_before(until).await;
+            let slice = rest.split_to(SLICE.min(rest.len()));
+            Some((Ok::<_, std::convert::Infallible>(slice), rest))
+        }
+    });
+    axum::body::Body::from_stream(slices)
 }
 
 async fn status(State(s): State<Arc<Shared>>) -> Response {
@@ -127,7 +147,11 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         "dem_horizon": horizon,
         "last_frame": last_frame,
         "recording": s.recorder.as_ref().map(|r| r.health()),
-        "views": {"images_made": images_made, "camera_captures": captures_made},
+        "views": {
+            "images_made": images_made,
+            "camera_captures": captures_made,
+            "served_during_frames": s.views.gate.ran_out(),
+        },
     }))
     .into_response()
 }
@@ -212,7 +236,8 @@ async fn view(s: &Shared, which: View) -> Response {
                     headers.push((header::HeaderName::from_static(name), v));
                 }
             }
-            let mut r = img.png.clone().into_response();
+            let mut r = between_frames_body(img.png.clone(), s.views.gate.clone()).into_response();
+            headers.push((header::CONTENT_LENGTH, img.png.len().to_string()));
             for (k, v) in headers {
                 if let Ok(v) = header::HeaderValue::from_str(&v) {
                     r.headers_mut().insert(k, v);

@@ -8,6 +8,12 @@
 //! view, then `503`); the simulated camera's capture is shared by its two views and taken
 //! from the frame thread when a subscriber already made it.
 //!
+//! Priority alone does not keep the worker off a frame's CPU on a 2-core bench (a
+//! `SCHED_IDLE` thread still runs in the frame's serial stages), so the worker also defers to
+//! the frames: it starts a job between frames ([`FrameGate`]) and the job's loops pause
+//! between slices of about a millisecond while a frame is in flight
+//! ([`crate::background::checkpoint`]), for at most [`FrameGate::MAX_DEFER`] per image.
+//!
 //! Views: the screen's codes as a 16-bit PNG (what the screen shows, exactly), the screen
 //! scaled for viewing (8-bit RGB, linear in DN, the image's highest unclipped code white,
 //! clipped pixels red), and the same two for the simulated camera (its DN; saturated
@@ -184,6 +190,8 @@ impl Views {
 #[derive(Debug, Default)]
 pub struct FrameGate {
     busy: std::sync::atomic::AtomicBool,
+    /// Waits that ran out with a frame still in flight (watchers then served during it).
+    ran_out: std::sync::atomic::AtomicU64,
 }
 
 impl FrameGate {
@@ -191,6 +199,13 @@ impl FrameGate {
     /// may be no gap: watchers are then served after this wait, at their low priority).
     pub const MAX_WAIT: std::time::Duration = std::time::Duration::from_millis(250);
     const POLL: std::time::Duration = std::time::Duration::from_millis(3);
+    /// The longest an image being made defers to the frames, over all its pauses: it is
+    /// made in the gaps between frames, in slices ([`crate::background`]), and after this
+    /// goes on at its low priority (a frame loop with no gaps must not starve the dashboard).
+    pub const MAX_DEFER: std::time::Duration = std::time::Duration::from_millis(1000);
+    /// How often a paused background slice looks at the gate (the gaps at perilune are a
+    /// few milliseconds).
+    const BACKGROUND_POLL: std::time::Duration = std::time::Duration::from_millis(1);
 
     /// Marks a frame in flight until the guard drops.
     pub fn enter(&self) -> FrameGuard<'_> {
@@ -204,18 +219,40 @@ impl FrameGate {
 
     /// Waits (asynchronously) until no frame is in flight, or `MAX_WAIT`.
     pub async fn idle(&self) {
-        let start = std::time::Instant::now();
-        while self.busy() && start.elapsed() < Self::MAX_WAIT {
+        self.idle_before(std::time::Instant::now() + Self::MAX_WAIT)
+            .await;
+    }
+
+    /// Waits (asynchronously) until no frame is in flight, or until `until`.
+    pub async fn idle_before(&self, until: std::time::Instant) {
+        while self.busy() {
+            if std::time::Instant::now() >= until {
+                self.count_ran_out();
+                return;
+            }
             tokio::time::sleep(Self::POLL).await;
         }
     }
 
-    /// Blocks the calling (background) thread until no frame is in flight, or `MAX_WAIT`.
-    pub fn idle_blocking(&self) {
-        let start = std::time::Instant::now();
-        while self.busy() && start.elapsed() < Self::MAX_WAIT {
-            std::thread::sleep(Self::POLL);
+    /// Blocks the calling (background) thread until no frame is in flight, or until `until`.
+    pub fn idle_until(&self, until: std::time::Instant) {
+        while self.busy() {
+            if std::time::Instant::now() >= until {
+                self.count_ran_out();
+                return;
+            }
+            std::thread::sleep(Self::BACKGROUND_POLL);
         }
+    }
+
+    fn count_ran_out(&self) {
+        self.ran_out
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Waits for the frames that ran out (watchers served during a frame) so far.
+    pub fn ran_out(&self) -> u64 {
+        self.ran_out.load(std::sync::atomic::Ordering::Relaxed)
     }
 }
 
@@ -249,14 +286,31 @@ pub fn background_priority() {
 
 fn worker(rx: std::sync::mpsc::Receiver<Job>, views: Weak<Views>) {
     background_priority();
+    // When the job being made stops deferring to the frames ([`FrameGate::MAX_DEFER`]).
+    let deadline = Arc::new(Mutex::new(std::time::Instant::now()));
+    let gate = match views.upgrade() {
+        Some(v) => v.gate.clone(),
+        None => return,
+    };
+    let (d, g) = (deadline.clone(), gate.clone());
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .thread_name(|_| "optistim-views-pool".into())
-        .start_handler(|_| background_priority())
+        .start_handler(move |_| {
+            background_priority();
+            let (d, g) = (d.clone(), g.clone());
+            // The job's loops pause between slices while a frame is in flight.
+            crate::background::install(Arc::new(move || {
+                let until = *d.lock().unwrap_or_else(|e| e.into_inner());
+                g.idle_until(until);
+            }));
+        })
         .build();
     while let Ok(job) = rx.recv() {
         let Some(views) = views.upgrade() else { return };
-        views.gate.idle_blocking();
+        let start = std::time::Instant::now();
+        *deadline.lock().unwrap_or_else(|e| e.into_inner()) = start + FrameGate::MAX_DEFER;
+        gate.idle_until(start + FrameGate::MAX_DEFER);
         let k = job.view as usize;
         let answer = match &pool {
             Ok(p) => p.install(|| make(&views, &job)),
@@ -361,7 +415,10 @@ fn viewing(id: (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn: u32) -> Answ
         .max(1);
     let mut clipped = 0u64;
     let mut rgb = Vec::with_capacity(dn.len() * 3);
-    for &v in dn {
+    for (k, &v) in dn.iter().enumerate() {
+        if k % (1 << 16) == 0 {
+            crate::background::checkpoint();
+        }
         let v = u32::from(v);
         if v >= clip_dn {
             clipped += 1;
@@ -382,6 +439,35 @@ fn viewing(id: (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn: u32) -> Answ
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_image_asked_for_during_a_frame_is_made_after_it() {
+        let views = Views::start().unwrap();
+        let screen = Arc::new(ScreenImage {
+            seq: 1,
+            frame_id: 9,
+            exposure_s: None,
+            screen_px: [64, 48],
+            dn: vec![100; 64 * 48],
+        });
+        let guard = views.gate.enter();
+        let Get::Wait(mut rx) = views.get(View::ScreenView, screen.clone(), 10, None) else {
+            panic!("nothing was cached");
+        };
+        std::thread::sleep(std::time::Duration::from_millis(150));
+        assert!(rx.try_recv().is_err(), "made while the frame was in flight");
+        assert_eq!(views.made().0, 0);
+        drop(guard);
+        let img = rx.blocking_recv().unwrap().unwrap();
+        assert_eq!((img.seq, img.frame_id), (1, 9));
+        assert_eq!(views.gate.ran_out(), 0);
+        // Once made, the frame's image is served from the cache.
+        assert!(matches!(
+            views.get(View::ScreenView, screen, 10, None),
+            Get::Ready(Ok(_))
+        ));
+        assert_eq!(views.made().0, 1);
+    }
 
     #[test]
     fn the_viewing_scale_makes_the_brightest_unclipped_dn_white_and_clips_red() {

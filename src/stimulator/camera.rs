@@ -145,6 +145,9 @@ impl SimulatedCamera {
         let table = &self.emitted_per_code;
         let mut emitted = Vec::with_capacity(rw * rh);
         for r in 0..rh {
+            if r % 64 == 0 {
+                crate::background::checkpoint();
+            }
             let row = &screen_dn[(oy + r) * sw + ox..(oy + r) * sw + ox + rw];
             for (i, &code) in row.iter().enumerate() {
                 let f = table[(code as usize).min(table.len() - 1)];
@@ -153,6 +156,7 @@ impl SimulatedCamera {
         }
         let mut feff_w_m2 = Vec::new();
         self.resampler.to_camera(&emitted, &mut feff_w_m2);
+        crate::background::checkpoint();
         let signal_e_per_s: Vec<f64> = feff_w_m2.iter().map(|f| f / self.k).collect();
         let size = (self.camera_px[0], self.camera_px[1]);
         let mut detector = std::borrow::Cow::Borrowed(&self.detector);

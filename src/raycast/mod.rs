@@ -19,6 +19,7 @@
 //! from the boresight. A pixel's `(P/L)` is that integrated over the pixel's footprint: in pixel
 //! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
 
+pub mod raster;
 pub mod reference;
 pub mod sampled;
 mod terrain;
@@ -209,15 +210,70 @@ impl<'a> Tracer<'a> {
         Some((self.camera_m + dir * t, normal))
     }
 
+    /// The first facet seen at every sample of an `n x n` grid per pixel, by rasterisation
+    /// ([`raster`]), where that is exact: a mesh body alone (no relief, no placed bodies)
+    /// seen through an undistorted camera from outside its bounding sphere.
+    pub fn rasterise(&self, n: usize) -> Option<raster::FacetBuffer> {
+        let Shape::Mesh(m) = &self.scene.body.shape else {
+            return None;
+        };
+        if self.terrain.is_some() || !self.others.is_empty() {
+            return None;
+        }
+        if self.camera_m.length() <= m.bounding_radius_m() {
+            return None;
+        }
+        raster::rasterise(
+            m,
+            self.camera_m,
+            self.body_from_camera.transpose(),
+            self.intrinsics,
+            n,
+        )
+    }
+
     /// Casts the line of sight through pixel position `(u, v)`.
     #[inline]
     pub fn cast(&self, u: f64, v: f64) -> Hit {
+        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
+        self.bring_back(dir, cos_eps, solid, self.nearest(dir))
+    }
+
+    /// [`Tracer::cast`] where the first surface on the line of sight is known to be the
+    /// first body's mesh facet `facet` ([`raster`]): the ray meets that facet's plane, no BVH.
+    #[inline]
+    pub fn cast_onto(&self, u: f64, v: f64, facet: u32) -> Hit {
+        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
+        let Shape::Mesh(m) = &self.scene.body.shape else {
+            return self.bring_back(dir, cos_eps, solid, self.nearest(dir));
+        };
+        let normal = m.normals()[facet as usize];
+        let a = m.vertices_m()[m.facets()[facet as usize][0] as usize];
+        let t = normal.dot(a - self.camera_m) / normal.dot(dir);
+        let nearest = if t.is_finite() && t > 0.0 {
+            Some((t, normal, Some(facet), 0))
+        } else {
+            // Edge-on to the line of sight: the BVH decides.
+            self.nearest(dir)
+        };
+        self.bring_back(dir, cos_eps, solid, nearest)
+    }
+
+    /// The light the line of sight `dir` (with its `cos(eps)` and solid-angle factor) brings
+    /// back from the surface `nearest` ([`Tracer::nearest`]) it meets.
+    #[inline]
+    fn bring_back(
+        &self,
+        dir: DVec3,
+        cos_eps: f64,
+        solid: f64,
+        nearest: Option<(f64, DVec3, Option<u32>, usize)>,
+    ) -> Hit {
         let miss = Hit {
             pl_per_px2: 0.0,
             range_m: f64::NAN,
         };
-        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
-        let Some((t, shape_normal, facet, which)) = self.nearest(dir) else {
+        let Some((t, shape_normal, facet, which)) = nearest else {
             return miss;
         };
         let p = self.camera_m + dir * t;

@@ -14,7 +14,8 @@
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.
 
-use super::{Coverage, Tracer};
+use super::raster::{self, FacetBuffer};
+use super::{Coverage, Hit, Tracer};
 use crate::render::{Frame, FrameStats, RenderError, Settings, StageTimings};
 use crate::scene::{Pose, Scene};
 use rayon::prelude::*;
@@ -29,14 +30,29 @@ const DARK: u8 = 2;
 const LIT: u8 = 4;
 
 /// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
-/// the rays that met the body [m] (NaN for none), the classes met, the rays cast.
-fn cast_pixel(tracer: &Tracer, u0: f64, v0: f64, n: u32) -> (f64, f64, u8, u64) {
+/// the rays that met the body [m] (NaN for none), the classes met, the rays cast. With
+/// `seen`, the first facet at each of its samples ([`super::raster`]).
+fn cast_pixel(
+    tracer: &Tracer,
+    u0: f64,
+    v0: f64,
+    n: u32,
+    seen: Option<&FacetBuffer>,
+) -> (f64, f64, u8, u64) {
     let step = 1.0 / n as f64;
     let (mut sum, mut range, mut hits, mut mask) = (0.0, 0.0, 0u32, 0u8);
     for j in 0..n {
         let v = v0 + (j as f64 + 0.5) * step;
         for i in 0..n {
-            let h = tracer.cast(u0 + (i as f64 + 0.5) * step, v);
+            let u = u0 + (i as f64 + 0.5) * step;
+            let h = match seen.map(|b| b.at(u0 as usize, v0 as usize, i as usize, j as usize)) {
+                Some(raster::NONE) => Hit {
+                    pl_per_px2: 0.0,
+                    range_m: f64::NAN,
+                },
+                Some(raster::UNDECIDED) | None => tracer.cast(u, v),
+                Some(facet) => tracer.cast_onto(u, v, facet),
+            };
             if h.range_m.is_nan() {
                 mask |= MISS;
                 continue;
@@ -79,6 +95,10 @@ pub fn render(
         None => Tracer::new(scene, pose),
     };
     let n = settings.raycast_samples;
+    // A mesh body alone through a pinhole: the first facet of every first-pass line of sight
+    // by rasterisation, so that only shadow rays and edge pixels go through the BVH.
+    let seen = tracer.rasterise(n as usize);
+    let t_raster = t0.elapsed();
     // Flat per-pixel buffers, filled in bands of TILE rows, in tiles of TILE x TILE pixels: a
     // tile whose lines of sight all miss every body's bounding sphere casts nothing.
     let mut pl = vec![0.0; w * h];
@@ -99,7 +119,8 @@ pub fn render(
                 }
                 for j in 0..rows {
                     for i in u0..(u0 + TILE).min(w) {
-                        let (v, d, c, r) = cast_pixel(&tracer, i as f64, (v0 + j) as f64, n);
+                        let (v, d, c, r) =
+                            cast_pixel(&tracer, i as f64, (v0 + j) as f64, n, seen.as_ref());
                         (pl[j * w + i], depth[j * w + i], class[j * w + i]) = (v, d, c);
                         rays += r;
                     }
@@ -128,7 +149,7 @@ pub fn render(
     };
     let refined: Vec<(f64, f64, u8, u64)> = edges
         .par_iter()
-        .map(|&p| cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, edge_n))
+        .map(|&p| cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, edge_n, None))
         .collect();
     let mut rays = first_rays;
     for (&p, r) in edges.iter().zip(&refined) {
@@ -159,7 +180,9 @@ pub fn render(
         total_pl_points: total,
         total_pl_image: total,
         timings_ms: StageTimings {
-            integration: t_first.as_secs_f64() * 1e3,
+            // The facets' rasterisation is their projection; the casts are the integration.
+            projection: t_raster.as_secs_f64() * 1e3,
+            integration: (t_first - t_raster).as_secs_f64() * 1e3,
             total: ms,
             ..Default::default()
         },

@@ -197,16 +197,17 @@ impl Renderer {
                 None
             };
             return self.pool.install(|| {
-                let rho = scene.body.brdf.albedo(crate::brdf::AlbedoType::Bond);
+                // The Bond albedo is an integral over the BRDF: only when it is used.
                 let scattered = ff.map(|ff| {
+                    let rho = scene.body.brdf.albedo(crate::brdf::AlbedoType::Bond);
                     let direct = crate::irradiance::direct(mesh, pose.sun_position_m);
-                    crate::irradiance::scattered(&ff, &direct, rho, orders)
+                    (crate::irradiance::scattered(&ff, &direct, rho, orders), rho)
                 });
                 crate::raycast::sampled::render(
                     scene,
                     pose,
                     settings,
-                    scattered.as_deref().map(|r| (r, rho)),
+                    scattered.as_ref().map(|(r, rho)| (&r[..], *rho)),
                 )
             });
         }

@@ -197,8 +197,28 @@ fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
         let q = glam::DMat3::from_quat(cfg.pose.body_from_camera);
         let tracer = optistim::raycast::Tracer::new(&cfg.scene, &cfg.pose);
         for n in [1usize, 2] {
-            let buf = optistim::raycast::raster::rasterise(mesh, cam, q.transpose(), intr, n)
+            // One tile covers the image here; the frame uses tiles of 8 px.
+            let r = optistim::raycast::raster::Rasteriser::new(mesh, cam, q.transpose(), intr, 80)
                 .expect("a pinhole camera outside the body");
+            let (mut buf, mut scratch) = (Vec::new(), Vec::new());
+            r.fill((0, 0), (80, 64), n, &mut buf, &mut scratch);
+            // The frame's tiles of 8 px, and single pixels (the edges' regions), agree.
+            let tiled =
+                optistim::raycast::raster::Rasteriser::new(mesh, cam, q.transpose(), intr, 8)
+                    .unwrap();
+            let mut part = Vec::new();
+            for (ty, tx) in (0..8).flat_map(|ty| (0..10).map(move |tx| (ty, tx))) {
+                tiled.fill((tx * 8, ty * 8), (8, 8), n, &mut part, &mut scratch);
+                for (k, &f) in part.iter().enumerate() {
+                    let (row, col) = (k / (8 * n), k % (8 * n));
+                    let at = (ty * 8 * n + row) * 80 * n + tx * 8 * n + col;
+                    assert_eq!(f, buf[at], "{name} tile {tx},{ty} sample {k}");
+                }
+            }
+            tiled.fill((37, 21), (1, 1), n, &mut part, &mut scratch);
+            for (k, &f) in part.iter().enumerate() {
+                assert_eq!(f, buf[(21 * n + k / n) * 80 * n + 37 * n + k % n]);
+            }
             let (mut seen, mut undecided, mut other_facet) = (0, 0, 0);
             for j in 0..64 {
                 for i in 0..80 {
@@ -209,7 +229,7 @@ fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
                             let (x, y) = intr.unproject(u, v);
                             let dir = (q * DVec3::new(x, y, 1.0)).normalize();
                             let want = brute_force(mesh, cam, dir);
-                            match (buf.at(i, j, a, b), want) {
+                            match (buf[(j * n + b) * 80 * n + i * n + a], want) {
                                 (optistim::raycast::raster::UNDECIDED, _) => undecided += 1,
                                 (optistim::raycast::raster::NONE, w) => {
                                     assert!(w.is_none(), "{name} {i},{j}: missed {w:?}")

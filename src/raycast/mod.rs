@@ -210,10 +210,10 @@ impl<'a> Tracer<'a> {
         Some((self.camera_m + dir * t, normal))
     }
 
-    /// The first facet seen at every sample of an `n x n` grid per pixel, by rasterisation
-    /// ([`raster`]), where that is exact: a mesh body alone (no relief, no placed bodies)
-    /// seen through an undistorted camera from outside its bounding sphere.
-    pub fn rasterise(&self, n: usize) -> Option<raster::FacetBuffer> {
+    /// The first body's mesh projected for rasterised primary visibility ([`raster`]),
+    /// binned by tiles of `tile` px, where that is exact: a mesh body alone (no relief, no
+    /// placed bodies) seen through an undistorted camera from outside its bounding sphere.
+    pub fn rasteriser(&self, tile: usize) -> Option<raster::Rasteriser> {
         let Shape::Mesh(m) = &self.scene.body.shape else {
             return None;
         };
@@ -223,12 +223,12 @@ impl<'a> Tracer<'a> {
         if self.camera_m.length() <= m.bounding_radius_m() {
             return None;
         }
-        raster::rasterise(
+        raster::Rasteriser::new(
             m,
             self.camera_m,
             self.body_from_camera.transpose(),
             self.intrinsics,
-            n,
+            tile,
         )
     }
 

@@ -14,7 +14,7 @@
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.
 
-use super::raster::{self, FacetBuffer};
+use super::raster;
 use super::{Coverage, Hit, Tracer};
 use crate::render::{Frame, FrameStats, RenderError, Settings, StageTimings};
 use crate::scene::{Pose, Scene};
@@ -29,15 +29,19 @@ const MISS: u8 = 1;
 const DARK: u8 = 2;
 const LIT: u8 = 4;
 
+/// The first facet at each sample of a region of pixels ([`super::raster`]): the region's
+/// buffer, the index in it of a pixel's sample `(0, 0)`, and its row stride.
+type Seen<'a> = (&'a [u32], usize, usize);
+
 /// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
 /// the rays that met the body [m] (NaN for none), the classes met, the rays cast. With
-/// `seen`, the first facet at each of its samples ([`super::raster`]).
+/// `seen`, the first facet at each of its samples.
 fn cast_pixel(
     tracer: &Tracer,
     u0: f64,
     v0: f64,
     n: u32,
-    seen: Option<&FacetBuffer>,
+    seen: Option<Seen>,
 ) -> (f64, f64, u8, u64) {
     let step = 1.0 / n as f64;
     let (mut sum, mut range, mut hits, mut mask) = (0.0, 0.0, 0u32, 0u8);
@@ -45,7 +49,7 @@ fn cast_pixel(
         let v = v0 + (j as f64 + 0.5) * step;
         for i in 0..n {
             let u = u0 + (i as f64 + 0.5) * step;
-            let h = match seen.map(|b| b.at(u0 as usize, v0 as usize, i as usize, j as usize)) {
+            let h = match seen.map(|(buf, at, stride)| buf[at + j as usize * stride + i as usize]) {
                 Some(raster::NONE) => Hit {
                     pl_per_px2: 0.0,
                     range_m: f64::NAN,
@@ -95,9 +99,9 @@ pub fn render(
         None => Tracer::new(scene, pose),
     };
     let n = settings.raycast_samples;
-    // A mesh body alone through a pinhole: the first facet of every first-pass line of sight
-    // by rasterisation, so that only shadow rays and edge pixels go through the BVH.
-    let seen = tracer.rasterise(n as usize);
+    // A mesh body alone through a pinhole: the first facet of every line of sight by
+    // rasterisation, so that only shadow rays (and undecided samples) go through the BVH.
+    let rasteriser = tracer.rasteriser(TILE);
     let t_raster = t0.elapsed();
     // Flat per-pixel buffers, filled in bands of TILE rows, in tiles of TILE x TILE pixels: a
     // tile whose lines of sight all miss every body's bounding sphere casts nothing.
@@ -109,25 +113,36 @@ pub fn render(
         .zip(depth.par_chunks_mut(TILE * w))
         .zip(class.par_chunks_mut(TILE * w))
         .enumerate()
-        .map(|(band, ((pl, depth), class))| {
-            let rows = pl.len() / w;
-            let mut rays = 0;
-            for tile in 0..w.div_ceil(TILE) {
-                let (u0, v0) = (tile * TILE, band * TILE);
-                if tracer.coverage(u0 as f64, v0 as f64, TILE as f64) == Coverage::Empty {
-                    continue;
-                }
-                for j in 0..rows {
-                    for i in u0..(u0 + TILE).min(w) {
-                        let (v, d, c, r) =
-                            cast_pixel(&tracer, i as f64, (v0 + j) as f64, n, seen.as_ref());
-                        (pl[j * w + i], depth[j * w + i], class[j * w + i]) = (v, d, c);
-                        rays += r;
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(facets, scratch), (band, ((pl, depth), class))| {
+                let rows = pl.len() / w;
+                let mut rays = 0;
+                for tile in 0..w.div_ceil(TILE) {
+                    let (u0, v0) = (tile * TILE, band * TILE);
+                    if tracer.coverage(u0 as f64, v0 as f64, TILE as f64) == Coverage::Empty {
+                        continue;
+                    }
+                    let cols = TILE.min(w - u0);
+                    let nn = n as usize;
+                    if let Some(r) = &rasteriser {
+                        r.fill((u0, v0), (cols, rows), nn, facets, scratch);
+                    }
+                    for j in 0..rows {
+                        for i in u0..u0 + cols {
+                            let seen = rasteriser.as_ref().map(|_| {
+                                (&facets[..], (j * nn) * cols * nn + (i - u0) * nn, cols * nn)
+                            });
+                            let (v, d, c, r) =
+                                cast_pixel(&tracer, i as f64, (v0 + j) as f64, n, seen);
+                            (pl[j * w + i], depth[j * w + i], class[j * w + i]) = (v, d, c);
+                            rays += r;
+                        }
                     }
                 }
-            }
-            rays
-        })
+                rays
+            },
+        )
         .sum();
     let t_first = t0.elapsed();
     // Pixels where the light changes: their own class or a neighbour's differs.
@@ -149,7 +164,18 @@ pub fn render(
     };
     let refined: Vec<(f64, f64, u8, u64)> = edges
         .par_iter()
-        .map(|&p| cast_pixel(&tracer, (p % w) as f64, (p / w) as f64, edge_n, None))
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(facets, scratch), &p| {
+                let (i, j) = (p % w, p / w);
+                let nn = edge_n as usize;
+                if let Some(r) = &rasteriser {
+                    r.fill((i, j), (1, 1), nn, facets, scratch);
+                }
+                let seen = rasteriser.as_ref().map(|_| (&facets[..], 0, nn));
+                cast_pixel(&tracer, i as f64, j as f64, edge_n, seen)
+            },
+        )
         .collect();
     let mut rays = first_rays;
     for (&p, r) in edges.iter().zip(&refined) {

@@ -271,6 +271,48 @@ fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
     }
 }
 
+/// The grid seen from the Sun casts the same shadows as the BVH, from points all over
+/// Itokawa and Bennu, for Suns all around them.
+#[test]
+fn the_sun_grid_casts_the_shadows_the_bvh_casts() {
+    for (name, d) in [("itokawa_8.obj", 1300.0), ("bennu_12k.obj", 1000.0)] {
+        let cfg = shape_scene(
+            &SceneSpec {
+                camera_m: [d, 0.0, 0.0],
+                ..Default::default()
+            },
+            name,
+        );
+        let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
+            unreachable!()
+        };
+        let (mut lit, mut shadowed) = (0, 0);
+        for k in 0..12 {
+            let a = k as f64 * 0.55;
+            let s = DVec3::new(a.cos(), a.sin() * 0.8, 0.6 * (a * 1.7).sin()).normalize();
+            let grid = optistim::raycast::sun_grid::SunGrid::new(mesh, s * AU).unwrap();
+            for (f, tri) in mesh.facets().iter().enumerate() {
+                let n = mesh.normals()[f];
+                if n.dot(s) <= 0.0 {
+                    continue;
+                }
+                // Points inside the facet, off its centroid.
+                let v = tri.map(|i| mesh.vertices_m()[i as usize]);
+                for w in [[0.6, 0.2, 0.2], [0.1, 0.3, 0.6]] {
+                    let p = v[0] * w[0] + v[1] * w[1] + v[2] * w[2];
+                    let dir = (s * AU - p).normalize();
+                    let want = mesh.shadows(p, n, dir);
+                    let got = grid.occluded(mesh.shadow_origin(p, n, dir), dir);
+                    assert_eq!(got, want, "{name} facet {f}, Sun {k}");
+                    (lit, shadowed) = (lit + !want as usize, shadowed + want as usize);
+                }
+            }
+        }
+        eprintln!("{name}: {lit} lit, {shadowed} shadowed");
+        assert!(shadowed > 100 && lit > 1000);
+    }
+}
+
 #[test]
 fn every_shared_shape_loads_and_renders() {
     let mut names: Vec<_> = std::fs::read_dir(SHAPES)

@@ -250,10 +250,17 @@ impl Mesh {
     /// of the bounding radius along its normal), so that the facet does not shadow itself.
     #[inline]
     pub fn shadows(&self, p_m: DVec3, normal: DVec3, dir: DVec3) -> bool {
+        self.bvh
+            .occluded(self.shadow_origin(p_m, normal, dir), dir, f64::INFINITY)
+    }
+
+    /// Where the shadow ray of [`Mesh::shadows`] starts: `p_m` lifted off its facet (normal
+    /// `normal`) by 1e-6 of the bounding radius, on the side the ray `dir` leaves to.
+    #[inline]
+    pub fn shadow_origin(&self, p_m: DVec3, normal: DVec3, dir: DVec3) -> DVec3 {
         let lift = 1e-6 * self.bounding_radius_m;
         let side = if normal.dot(dir) >= 0.0 { 1.0 } else { -1.0 };
-        self.bvh
-            .occluded(p_m + normal * (side * lift), dir, f64::INFINITY)
+        p_m + normal * (side * lift)
     }
 
     /// Whether a facet lies on the ray `from_m + t dir` (`dir` unit) with `0 < t < t_max_m`.

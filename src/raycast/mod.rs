@@ -22,6 +22,7 @@
 pub mod raster;
 pub mod reference;
 pub mod sampled;
+pub mod sun_grid;
 mod terrain;
 
 use terrain::Terrain;
@@ -59,6 +60,9 @@ pub struct Tracer<'a> {
     /// Per placed body: the unit direction (B) from the camera to its centre and the angular
     /// radius of its bounding sphere [rad].
     others: Vec<(DVec3, f64)>,
+    /// A closed mesh body's sun-facing facets binned across the Sun's direction: its shadows
+    /// on itself without the BVH ([`sun_grid`]).
+    sun_grid: Option<sun_grid::SunGrid>,
 }
 
 /// What one line of sight meets.
@@ -129,6 +133,10 @@ impl<'a> Tracer<'a> {
             },
             inner_rad: (inner / d).min(1.0).asin(),
             scattered: None,
+            sun_grid: match &scene.body.shape {
+                Shape::Mesh(m) => sun_grid::SunGrid::new(m, pose.sun_position_m),
+                _ => None,
+            },
             others: scene
                 .others
                 .iter()
@@ -367,10 +375,14 @@ impl<'a> Tracer<'a> {
         {
             return false;
         }
-        if let Shape::Mesh(m) = &self.scene.body.shape
-            && m.shadows(p, normal, s)
-        {
-            return false;
+        if let Shape::Mesh(m) = &self.scene.body.shape {
+            let shadowed = match &self.sun_grid {
+                Some(g) => g.occluded(m.shadow_origin(p, normal, s), s),
+                None => m.shadows(p, normal, s),
+            };
+            if shadowed {
+                return false;
+            }
         }
         !self.eclipsed(p, s, 0)
     }

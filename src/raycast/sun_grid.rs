@@ -1,0 +1,167 @@
+//! A mesh's shadows on itself through a grid seen from the Sun (after SLIM Sec. 6.1, which
+//! traces solar rays through a uniform grid over the body; here the grid lies in the plane
+//! across the Sun's direction, so a shadow ray never leaves its cell).
+//!
+//! On a closed surface a ray from a surface point toward the Sun that meets the body must
+//! leave it again through a facet that faces the Sun. So only the sun-facing facets are
+//! binned, by their projections along the Sun's direction from the body's centre, `s0`, into
+//! square cells; a shadow ray from `p` is tested against the facets of the one cell `p`
+//! projects into (Möller-Trumbore in f64). The Sun's direction seen from a point of the body
+//! differs from `s0` by at most `R / d_sun`: the facets' footprints are widened by what that
+//! turns into over the body's diameter, so that every facet a ray can meet is in its cell.
+//!
+//! Built per frame (the Sun moves) in `O(facets)`: for Bennu's 12,288 facets well under a
+//! millisecond. Open meshes (a ray can meet the back of a facet and stop there) keep the BVH.
+
+use crate::body::mesh::Mesh;
+use glam::{DVec2, DVec3};
+
+/// Cells per sun-facing facet, about.
+const CELLS_PER_FACET: f64 = 2.0;
+
+/// The sun-facing facets of a mesh, binned across the Sun's direction.
+pub struct SunGrid {
+    /// Unit axes of the grid's plane, across `s0`.
+    e1: DVec3,
+    e2: DVec3,
+    /// The grid's corner in the plane [m] and its cell side [m].
+    lo: DVec2,
+    cell_m: f64,
+    cells: [usize; 2],
+    /// Facets by cell (CSR): `items[starts[c]..starts[c + 1]]` index `tris`.
+    starts: Vec<u32>,
+    items: Vec<u32>,
+    /// Per sun-facing facet: a vertex and two edges [m] (body frame).
+    tris: Vec<[DVec3; 3]>,
+}
+
+impl SunGrid {
+    /// The grid of the closed `mesh` for the Sun at `sun_m` (body frame); `None` for an open
+    /// mesh or a Sun inside the body's bounding sphere.
+    pub fn new(mesh: &Mesh, sun_m: DVec3) -> Option<SunGrid> {
+        let r = mesh.bounding_radius_m();
+        let d_sun = sun_m.length();
+        if mesh.report().open_edges != 0 || d_sun <= 2.0 * r || !d_sun.is_finite() {
+            return None;
+        }
+        let s0 = sun_m / d_sun;
+        let e1 = s0.any_orthonormal_vector();
+        let e2 = s0.cross(e1);
+        // How far a ray from a point of the body drifts across s0 over the body's diameter,
+        // with a margin for rounding and for the shadow ray's lift off its facet.
+        let spread = (r / (d_sun - r)).asin();
+        let pad = 2.0 * r * spread * 2.0 + 1e-9 * r;
+        let v = mesh.vertices_m();
+        let mut tris = Vec::new();
+        let mut boxes = Vec::new();
+        for (f, tri) in mesh.facets().iter().enumerate() {
+            // Facing the Sun from some point of the body (a facet edge-on to s0 may face
+            // the Sun seen from elsewhere).
+            if mesh.normals()[f].dot(s0) < -spread.sin() {
+                continue;
+            }
+            let [a, b, c] = tri.map(|k| v[k as usize]);
+            let p = [a, b, c].map(|x| DVec2::new(x.dot(e1), x.dot(e2)));
+            let lo = p[0].min(p[1]).min(p[2]) - DVec2::splat(pad);
+            let hi = p[0].max(p[1]).max(p[2]) + DVec2::splat(pad);
+            tris.push([a, b - a, c - a]);
+            boxes.push((lo, hi));
+        }
+        if tris.is_empty() {
+            return None;
+        }
+        let lo = boxes
+            .iter()
+            .fold(DVec2::splat(f64::INFINITY), |m, b| m.min(b.0));
+        let hi = boxes
+            .iter()
+            .fold(DVec2::splat(f64::NEG_INFINITY), |m, b| m.max(b.1));
+        let extent = hi - lo;
+        let cell_m = (extent.x * extent.y / (CELLS_PER_FACET * tris.len() as f64))
+            .sqrt()
+            .max(1e-12 * r);
+        let cells = [
+            ((extent.x / cell_m).ceil() as usize).clamp(1, 4096),
+            ((extent.y / cell_m).ceil() as usize).clamp(1, 4096),
+        ];
+        let cell_m = (extent.x / cells[0] as f64).max(extent.y / cells[1] as f64);
+        let index = |x: f64, n: usize| (((x / cell_m).floor().max(0.0)) as usize).min(n - 1);
+        let span = |(lo_b, hi_b): (DVec2, DVec2)| {
+            let (a, b) = (lo_b - lo, hi_b - lo);
+            (
+                index(a.x, cells[0])..=index(b.x, cells[0]),
+                index(a.y, cells[1])..=index(b.y, cells[1]),
+            )
+        };
+        // Counting, then filling: facets in each cell in facet order.
+        let mut starts = vec![0u32; cells[0] * cells[1] + 1];
+        for &b in &boxes {
+            let (xs, ys) = span(b);
+            for y in ys {
+                for x in xs.clone() {
+                    starts[y * cells[0] + x + 1] += 1;
+                }
+            }
+        }
+        for c in 1..starts.len() {
+            starts[c] += starts[c - 1];
+        }
+        let mut next = starts.clone();
+        let mut items = vec![0u32; *starts.last().unwrap_or(&0) as usize];
+        for (k, &b) in boxes.iter().enumerate() {
+            let (xs, ys) = span(b);
+            for y in ys {
+                for x in xs.clone() {
+                    let c = y * cells[0] + x;
+                    items[next[c] as usize] = k as u32;
+                    next[c] += 1;
+                }
+            }
+        }
+        Some(SunGrid {
+            e1,
+            e2,
+            lo,
+            cell_m,
+            cells,
+            starts,
+            items,
+            tris,
+        })
+    }
+
+    /// Whether a sun-facing facet lies on the ray `origin_m + t dir` (`dir` unit, toward the
+    /// Sun), `t > 0`.
+    #[inline]
+    pub fn occluded(&self, origin_m: DVec3, dir: DVec3) -> bool {
+        let q = DVec2::new(origin_m.dot(self.e1), origin_m.dot(self.e2)) - self.lo;
+        let (x, y) = ((q.x / self.cell_m).floor(), (q.y / self.cell_m).floor());
+        if x < 0.0 || y < 0.0 || x >= self.cells[0] as f64 || y >= self.cells[1] as f64 {
+            return false;
+        }
+        let c = y as usize * self.cells[0] + x as usize;
+        let list = &self.items[self.starts[c] as usize..self.starts[c + 1] as usize];
+        list.iter().any(|&k| {
+            let [a, e1, e2] = self.tris[k as usize];
+            let p = dir.cross(e2);
+            let det = e1.dot(p);
+            if det.abs() < 1e-300 {
+                return false;
+            }
+            let inv = 1.0 / det;
+            let s = origin_m - a;
+            let u = s.dot(p) * inv;
+            if !(0.0..=1.0).contains(&u) {
+                return false;
+            }
+            let qv = s.cross(e1);
+            let w = dir.dot(qv) * inv;
+            w >= 0.0 && u + w <= 1.0 && e2.dot(qv) * inv > 0.0
+        })
+    }
+
+    /// Facet entries over all cells and cells (for reports).
+    pub fn size(&self) -> (usize, usize) {
+        (self.items.len(), self.cells[0] * self.cells[1])
+    }
+}

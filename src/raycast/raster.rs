@@ -160,7 +160,7 @@ impl Rasteriser {
     /// row-major ([`NONE`], [`UNDECIDED`] or a facet index); `depth` is scratch. Sample `(a, b)`
     /// of pixel `(i, j)` sits at `(i + (a + 0.5) / n, j + (b + 0.5) / n)`, where
     /// [`super::sampled`] casts.
-        pub fn fill(
+    pub fn fill(
         &self,
         (i0, j0): (usize, usize),
         (cols, rows): (usize, usize),

@@ -113,22 +113,28 @@ fn brute_force(mesh: &Mesh, o: DVec3, d: DVec3) -> Option<(f64, usize)> {
     best
 }
 
+/// A shared shape seen from `d` metres off its centre, obliquely, under a low Sun (phase
+/// 75 deg), so that its concavities cast shadows.
+fn low_sun_scene(name: &str, d: f64, resolution: [u32; 2], focal_m: f64) -> Config {
+    shape_scene(
+        &SceneSpec {
+            resolution,
+            focal_m,
+            camera_m: [d * 0.3, d * 0.2, d * 0.93],
+            sun_m: [AU * 0.96, AU * 0.0, AU * 0.28],
+            ..Default::default()
+        },
+        name,
+    )
+}
+
 #[test]
 fn hits_and_shadows_equal_a_brute_force_search_on_itokawa() {
     // Itokawa is about 535 x 294 x 209 m: the camera at 1.3 km, a low Sun (phase 75 deg) so
     // that the body's concavities cast shadows.
     let d = 1300.0;
     let r = 300.0;
-    let cfg = shape_scene(
-        &SceneSpec {
-            resolution: [96, 96],
-            focal_m: 0.001,
-            camera_m: [d * 0.3, d * 0.2, d * 0.93],
-            sun_m: [AU * 0.96, AU * 0.0, AU * 0.28],
-            ..Default::default()
-        },
-        "itokawa_8.obj",
-    );
+    let cfg = low_sun_scene("itokawa_8.obj", d, [96, 96], 0.001);
     let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
         unreachable!()
     };
@@ -179,16 +185,7 @@ fn hits_and_shadows_equal_a_brute_force_search_on_itokawa() {
 #[test]
 fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
     for (name, d) in [("itokawa_8.obj", 1300.0), ("bennu_12k.obj", 1000.0)] {
-        let cfg = shape_scene(
-            &SceneSpec {
-                resolution: [80, 64],
-                focal_m: 0.0011,
-                camera_m: [d * 0.3, d * 0.2, d * 0.93],
-                sun_m: [AU * 0.96, AU * 0.0, AU * 0.28],
-                ..Default::default()
-            },
-            name,
-        );
+        let cfg = low_sun_scene(name, d, [80, 64], 0.0011);
         let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
             unreachable!()
         };

@@ -103,8 +103,17 @@ pub fn render(
     // rasterisation, so that only shadow rays (and undecided samples) go through the BVH.
     let rasteriser = tracer.rasteriser(TILE);
     let t_raster = t0.elapsed();
-    // Flat per-pixel buffers, filled in bands of TILE rows, in tiles of TILE x TILE pixels: a
-    // tile whose lines of sight all miss every body's bounding sphere casts nothing.
+    // Tiles of TILE x TILE pixels some line of sight of which may meet a body's bounding
+    // sphere: the others cast nothing.
+    let (tiles_w, tiles_h) = (w.div_ceil(TILE), h.div_ceil(TILE));
+    let covered: Vec<bool> = (0..tiles_w * tiles_h)
+        .into_par_iter()
+        .map(|t| {
+            let (u0, v0) = ((t % tiles_w) * TILE, (t / tiles_w) * TILE);
+            tracer.coverage(u0 as f64, v0 as f64, TILE as f64) != Coverage::Empty
+        })
+        .collect();
+    // Flat per-pixel buffers, filled in bands of TILE rows, tile by tile.
     let mut pl = vec![0.0; w * h];
     let mut depth = vec![f64::NAN; w * h];
     let mut class = vec![MISS; w * h];
@@ -120,7 +129,7 @@ pub fn render(
                 let mut rays = 0;
                 for tile in 0..w.div_ceil(TILE) {
                     let (u0, v0) = (tile * TILE, band * TILE);
-                    if tracer.coverage(u0 as f64, v0 as f64, TILE as f64) == Coverage::Empty {
+                    if !covered[band * tiles_w + tile] {
                         continue;
                     }
                     let cols = TILE.min(w - u0);
@@ -154,10 +163,23 @@ pub fn render(
     };
     let edge_n = settings.raycast_edge_samples.max(n);
     let edges: Vec<usize> = if edge_n > n {
-        (0..w * h)
+        // A pixel's neighbours lie in its tile or the next ones: where none of those was
+        // cast, every ray around it missed.
+        let near_cast = |t: usize| {
+            let (tx, ty) = (t % tiles_w, t / tiles_w);
+            (ty.saturating_sub(1)..=(ty + 1).min(tiles_h - 1)).any(|y| {
+                (tx.saturating_sub(1)..=(tx + 1).min(tiles_w - 1)).any(|x| covered[y * tiles_w + x])
+            })
+        };
+        (0..tiles_w * tiles_h)
             .into_par_iter()
-            .with_min_len(1024)
-            .filter(|&p| mixed(p))
+            .filter(|&t| near_cast(t))
+            .flat_map_iter(|t| {
+                let (u0, v0) = ((t % tiles_w) * TILE, (t / tiles_w) * TILE);
+                (v0..(v0 + TILE).min(h))
+                    .flat_map(move |j| (u0..(u0 + TILE).min(w)).map(move |i| j * w + i))
+                    .filter(|&p| mixed(p))
+            })
             .collect()
     } else {
         Vec::new()

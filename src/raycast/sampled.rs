@@ -11,6 +11,11 @@
 //! leaves a pixel interior to a region of one class between its rays is not (a shadow
 //! narrower than `1/n` px), which `raycast_samples` bounds.
 //!
+//! A mesh body alone seen through a pinhole casts the same lines of sight without searching
+//! for their first facets: those come from rasterisation at the same sample positions
+//! ([`super::raster`], per tile, and per pixel at the edges), and a closed mesh's shadow rays
+//! go through a grid seen from the Sun ([`super::sun_grid`]).
+//!
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.
 
@@ -228,7 +233,8 @@ pub fn render(
         total_pl_points: total,
         total_pl_image: total,
         timings_ms: StageTimings {
-            // The facets' rasterisation is their projection; the casts are the integration.
+            // The tracer's set-up with the facets' projections (sun grid, raster bins) is the
+            // projection stage; the casts are the integration.
             projection: t_raster.as_secs_f64() * 1e3,
             integration: (t_first - t_raster).as_secs_f64() * 1e3,
             total: ms,

@@ -28,12 +28,21 @@ pub struct Recorder {
     last_error: Mutex<Option<String>>,
 }
 
+/// Where the entries go: a file, which syncs to the disk at the end.
+trait Out: Write + Send {
+    fn sync(&mut self) -> std::io::Result<()>;
+}
+
+impl Out for std::fs::File {
+    fn sync(&mut self) -> std::io::Result<()> {
+        self.sync_all()
+    }
+}
+
 /// The file and the whole entries not yet handed to it, oldest first. Entries go out whole
 /// and in order: a disk that fills mid-entry and frees later leaves no broken line.
 struct Sink {
-    out: Box<dyn Write + Send>,
-    /// The file behind `out`, to sync at the end.
-    file: Option<std::fs::File>,
+    out: Box<dyn Out>,
     held: VecDeque<Vec<u8>>,
     /// Bytes of the first held entry already handed to the OS.
     sent: usize,
@@ -41,28 +50,26 @@ struct Sink {
 }
 
 impl Sink {
-    /// Hands held entries to the OS until one is refused; the entries fully handed.
-    fn drain(&mut self) -> (u64, std::io::Result<()>) {
-        let mut done = 0;
+    /// Hands held entries to the OS until one is refused, counting in `written` those fully
+    /// handed.
+    fn drain(&mut self, written: &std::sync::atomic::AtomicU64) -> std::io::Result<()> {
         while let Some(first) = self.held.front() {
             match self.out.write(&first[self.sent..]) {
-                Ok(0) => {
-                    return (done, Err(std::io::ErrorKind::WriteZero.into()));
-                }
+                Ok(0) => return Err(std::io::ErrorKind::WriteZero.into()),
                 Ok(n) => {
                     self.sent += n;
                     if self.sent == first.len() {
                         self.held_bytes -= first.len();
                         self.held.pop_front();
                         self.sent = 0;
-                        done += 1;
+                        written.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     }
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return (done, Err(e)),
+                Err(e) => return Err(e),
             }
         }
-        (done, Ok(()))
+        Ok(())
     }
 }
 
@@ -96,19 +103,18 @@ impl Recorder {
     /// Creates (or truncates) the recording file.
     pub fn create(path: &Path) -> std::io::Result<Recorder> {
         let file = std::fs::File::create(path)?;
-        let sync = file.try_clone().ok();
-        let mut r = Recorder::to_sink(&path.display().to_string(), Box::new(file));
-        r.sink.get_mut().unwrap_or_else(|e| e.into_inner()).file = sync;
-        Ok(r)
+        Ok(Recorder::to_sink(
+            &path.display().to_string(),
+            Box::new(file),
+        ))
     }
 
     /// A recording written to `out` (named `path` in reports).
-    fn to_sink(path: &str, out: Box<dyn Write + Send>) -> Recorder {
+    fn to_sink(path: &str, out: Box<dyn Out>) -> Recorder {
         Recorder {
             path: path.to_string(),
             sink: Mutex::new(Sink {
                 out,
-                file: None,
                 held: VecDeque::new(),
                 sent: 0,
                 held_bytes: 0,
@@ -152,9 +158,7 @@ impl Recorder {
             s.held_bytes += line.len();
             s.held.push_back(line);
         }
-        let (done, r) = s.drain();
-        self.written.fetch_add(done, Relaxed);
-        if let Err(err) = r {
+        if let Err(err) = s.drain(&self.written) {
             self.refused(&err);
         }
     }
@@ -194,14 +198,9 @@ impl Recorder {
     /// Hands every held entry to the disk and syncs; an error if any is still held or lost.
     pub fn flush(&self) -> std::io::Result<()> {
         let mut s = self.sink.lock().unwrap_or_else(|e| e.into_inner());
-        let (done, r) = s.drain();
-        self.written
-            .fetch_add(done, std::sync::atomic::Ordering::Relaxed);
-        r?;
+        s.drain(&self.written)?;
         s.out.flush()?;
-        if let Some(f) = &s.file {
-            f.sync_all()?;
-        }
+        s.out.sync()?;
         let lost = self.lost.load(std::sync::atomic::Ordering::Relaxed);
         if lost > 0 {
             return Err(std::io::Error::other(format!(
@@ -234,6 +233,12 @@ mod tests {
             Ok(n)
         }
         fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Out for Disk {
+        fn sync(&mut self) -> std::io::Result<()> {
             Ok(())
         }
     }

@@ -225,29 +225,30 @@ impl FrameGate {
 
     /// Waits (asynchronously) until no frame is in flight, or until `until`.
     pub async fn idle_before(&self, until: std::time::Instant) {
-        while self.busy() {
-            if std::time::Instant::now() >= until {
-                self.count_ran_out();
-                return;
-            }
+        while self.wait_on(until) {
             tokio::time::sleep(Self::POLL).await;
         }
     }
 
     /// Blocks the calling (background) thread until no frame is in flight, or until `until`.
     pub fn idle_until(&self, until: std::time::Instant) {
-        while self.busy() {
-            if std::time::Instant::now() >= until {
-                self.count_ran_out();
-                return;
-            }
+        while self.wait_on(until) {
             std::thread::sleep(Self::BACKGROUND_POLL);
         }
     }
 
-    fn count_ran_out(&self) {
+    /// Whether a watcher should go on waiting: a frame is in flight and `until` is not
+    /// reached (a wait that reaches it is counted).
+    fn wait_on(&self, until: std::time::Instant) -> bool {
+        if !self.busy() {
+            return false;
+        }
+        if std::time::Instant::now() < until {
+            return true;
+        }
         self.ran_out
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        false
     }
 
     /// Waits for the frames that ran out (watchers served during a frame) so far.
@@ -308,9 +309,9 @@ fn worker(rx: std::sync::mpsc::Receiver<Job>, views: Weak<Views>) {
         .build();
     while let Ok(job) = rx.recv() {
         let Some(views) = views.upgrade() else { return };
-        let start = std::time::Instant::now();
-        *deadline.lock().unwrap_or_else(|e| e.into_inner()) = start + FrameGate::MAX_DEFER;
-        gate.idle_until(start + FrameGate::MAX_DEFER);
+        let until = std::time::Instant::now() + FrameGate::MAX_DEFER;
+        *deadline.lock().unwrap_or_else(|e| e.into_inner()) = until;
+        gate.idle_until(until);
         let k = job.view as usize;
         let answer = match &pool {
             Ok(p) => p.install(|| make(&views, &job)),

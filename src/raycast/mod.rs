@@ -19,6 +19,7 @@
 //! from the boresight. A pixel's `(P/L)` is that integrated over the pixel's footprint: in pixel
 //! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
 
+mod bins;
 pub mod raster;
 pub mod reference;
 pub mod sampled;

@@ -16,6 +16,7 @@
 //! every facet that shares them, so that two neighbours agree bit for bit on which side of
 //! their common edge a sample lies: no sample falls in a crack between them.
 
+use super::bins::Bins;
 use crate::body::mesh::Mesh;
 use crate::camera::Intrinsics;
 use glam::{DMat3, DVec2, DVec3};
@@ -87,11 +88,9 @@ impl Projected {
 /// A mesh's facets projected into one frame's image and binned by tiles.
 pub struct Rasteriser {
     projected: Vec<Projected>,
-    /// Per tile of `tile x tile` px (row-major), the projected facets that may cover it, in
-    /// facet order.
-    bins: Vec<Vec<u32>>,
+    /// Per tile of `tile x tile` px, the projected facets that may cover it, in facet order.
+    bins: Bins,
     tile: usize,
-    tiles_wide: usize,
 }
 
 impl Rasteriser {
@@ -109,9 +108,6 @@ impl Rasteriser {
             return None;
         }
         let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
-        let (fu, fv) = intrinsics.focal_px();
-        let [cu, cv] = intrinsics.principal_point_px;
-        let skew = intrinsics.skew_px;
         // A vertex in front by less than a millionth of the mesh's size reaches the plane.
         let near = 1e-6 * mesh.bounding_radius_m();
         let mut image = Vec::with_capacity(mesh.vertices_m().len());
@@ -120,12 +116,11 @@ impl Rasteriser {
             if c.z <= near {
                 return None;
             }
-            let (x, y) = (c.x / c.z, c.y / c.z);
-            image.push((DVec2::new(fu * x + skew * y + cu, fv * y + cv), 1.0 / c.z));
+            image.push((DVec2::from(intrinsics.project(c.x, c.y, c.z)), 1.0 / c.z));
         }
-        let tiles_wide = w.div_ceil(tile);
-        let mut bins = vec![Vec::new(); tiles_wide * h.div_ceil(tile)];
+        let tiles = [w.div_ceil(tile), h.div_ceil(tile)];
         let mut projected = Vec::with_capacity(mesh.facets().len());
+        let mut spans = Vec::with_capacity(mesh.facets().len());
         // A closed surface seen from outside shows only the fronts of its facets.
         let cull = mesh.report().open_edges == 0;
         for (f, tri) in mesh.facets().iter().enumerate() {
@@ -138,20 +133,17 @@ impl Rasteriser {
             if !(hi.x > 0.0 && hi.y > 0.0 && lo.x < w as f64 && lo.y < h as f64) {
                 continue;
             }
-            let k = projected.len() as u32;
             let tile_of = |x: f64, end: usize| ((x.max(0.0) as usize) / tile).min(end - 1);
-            for ty in tile_of(lo.y, h.div_ceil(tile))..=tile_of(hi.y, h.div_ceil(tile)) {
-                for tx in tile_of(lo.x, tiles_wide)..=tile_of(hi.x, tiles_wide) {
-                    bins[ty * tiles_wide + tx].push(k);
-                }
-            }
+            spans.push([
+                [tile_of(lo.x, tiles[0]), tile_of(hi.x, tiles[0])],
+                [tile_of(lo.y, tiles[1]), tile_of(hi.y, tiles[1])],
+            ]);
             projected.push(t);
         }
         Some(Rasteriser {
             projected,
-            bins,
+            bins: Bins::new(tiles, &spans),
             tile,
-            tiles_wide,
         })
     }
 
@@ -174,8 +166,7 @@ impl Rasteriser {
         depth.clear();
         depth.resize(width * rows * n, 0.0);
         let step = 1.0 / n as f64;
-        let bin = &self.bins[(j0 / self.tile) * self.tiles_wide + i0 / self.tile];
-        for &k in bin {
+        for &k in self.bins.cell(i0 / self.tile, j0 / self.tile) {
             let t = &self.projected[k as usize];
             // The region's pixels the facet's bounding box reaches.
             let span = |lo: f64, hi: f64, first: usize, count: usize| {

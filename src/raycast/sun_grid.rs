@@ -13,6 +13,7 @@
 //! Built per frame (the Sun moves) in `O(facets)`: for Bennu's 12,288 facets well under a
 //! millisecond. Open meshes (a ray can meet the back of a facet and stop there) keep the BVH.
 
+use super::bins::Bins;
 use crate::body::mesh::Mesh;
 use glam::{DVec2, DVec3};
 
@@ -28,9 +29,8 @@ pub struct SunGrid {
     lo: DVec2,
     cell_m: f64,
     cells: [usize; 2],
-    /// Facets by cell (CSR): `items[starts[c]..starts[c + 1]]` index `tris`.
-    starts: Vec<u32>,
-    items: Vec<u32>,
+    /// Facets by cell, as indices of `tris`.
+    bins: Bins,
     /// Per sun-facing facet: a vertex and two edges [m] (body frame).
     tris: Vec<[DVec3; 3]>,
 }
@@ -54,10 +54,11 @@ impl SunGrid {
         let v = mesh.vertices_m();
         let mut tris = Vec::new();
         let mut boxes = Vec::new();
+        let facing = -spread.sin();
         for (f, tri) in mesh.facets().iter().enumerate() {
             // Facing the Sun from some point of the body (a facet edge-on to s0 may face
             // the Sun seen from elsewhere).
-            if mesh.normals()[f].dot(s0) < -spread.sin() {
+            if mesh.normals()[f].dot(s0) < facing {
                 continue;
             }
             let [a, b, c] = tri.map(|k| v[k as usize]);
@@ -86,46 +87,23 @@ impl SunGrid {
         ];
         let cell_m = (extent.x / cells[0] as f64).max(extent.y / cells[1] as f64);
         let index = |x: f64, n: usize| (((x / cell_m).floor().max(0.0)) as usize).min(n - 1);
-        let span = |(lo_b, hi_b): (DVec2, DVec2)| {
-            let (a, b) = (lo_b - lo, hi_b - lo);
-            (
-                index(a.x, cells[0])..=index(b.x, cells[0]),
-                index(a.y, cells[1])..=index(b.y, cells[1]),
-            )
-        };
-        // Counting, then filling: facets in each cell in facet order.
-        let mut starts = vec![0u32; cells[0] * cells[1] + 1];
-        for &b in &boxes {
-            let (xs, ys) = span(b);
-            for y in ys {
-                for x in xs.clone() {
-                    starts[y * cells[0] + x + 1] += 1;
-                }
-            }
-        }
-        for c in 1..starts.len() {
-            starts[c] += starts[c - 1];
-        }
-        let mut next = starts.clone();
-        let mut items = vec![0u32; *starts.last().unwrap_or(&0) as usize];
-        for (k, &b) in boxes.iter().enumerate() {
-            let (xs, ys) = span(b);
-            for y in ys {
-                for x in xs.clone() {
-                    let c = y * cells[0] + x;
-                    items[next[c] as usize] = k as u32;
-                    next[c] += 1;
-                }
-            }
-        }
+        let spans: Vec<[[usize; 2]; 2]> = boxes
+            .iter()
+            .map(|&(lo_b, hi_b)| {
+                let (a, b) = (lo_b - lo, hi_b - lo);
+                [
+                    [index(a.x, cells[0]), index(b.x, cells[0])],
+                    [index(a.y, cells[1]), index(b.y, cells[1])],
+                ]
+            })
+            .collect();
         Some(SunGrid {
             e1,
             e2,
             lo,
             cell_m,
             cells,
-            starts,
-            items,
+            bins: Bins::new(cells, &spans),
             tris,
         })
     }
@@ -139,9 +117,7 @@ impl SunGrid {
         if x < 0.0 || y < 0.0 || x >= self.cells[0] as f64 || y >= self.cells[1] as f64 {
             return false;
         }
-        let c = y as usize * self.cells[0] + x as usize;
-        let list = &self.items[self.starts[c] as usize..self.starts[c + 1] as usize];
-        list.iter().any(|&k| {
+        self.bins.cell(x as usize, y as usize).iter().any(|&k| {
             let [a, e1, e2] = self.tris[k as usize];
             let p = dir.cross(e2);
             let det = e1.dot(p);
@@ -158,10 +134,5 @@ impl SunGrid {
             let w = dir.dot(qv) * inv;
             w >= 0.0 && u + w <= 1.0 && e2.dot(qv) * inv > 0.0
         })
-    }
-
-    /// Facet entries over all cells and cells (for reports).
-    pub fn size(&self) -> (usize, usize) {
-        (self.items.len(), self.cells[0] * self.cells[1])
     }
 }

@@ -37,6 +37,25 @@ enum Command {
         #[arg(long, default_value_t = 10)]
         max_depth: u32,
     },
+    /// Render every pose of a trajectory (or shard I of N) to a dataset folder: per frame
+    /// DIR/frames/NNNNNN/{power,signal,depth}.fits, image.png and frame.json, and a manifest.
+    /// Resumable: frames already finished are neither rendered nor rewritten.
+    RenderTrajectory {
+        /// Pose stream, CSV or JSON lines (../shared/trajectories/).
+        trajectory: PathBuf,
+        /// Scene TOML (body, Sun, camera, [render]).
+        #[arg(long)]
+        scene: PathBuf,
+        /// Dataset folder.
+        #[arg(long, default_value = "out/dataset")]
+        out: PathBuf,
+        /// Only shard I of N (from 0): a contiguous block of the frames.
+        #[arg(long, default_value = "0/1")]
+        shard: String,
+        /// Render threads (0: RAYON_NUM_THREADS, else the CPUs this process may use).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
     /// The speed-accuracy front: a grid of scenes x settings, each timed and measured against
     /// the scene's converged reference; writes sweep.csv, front.png and front.svg.
     Sweep {
@@ -259,6 +278,34 @@ fn run() -> anyhow::Result<()> {
             };
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
             println!("{}", serde_json::to_string(&summary)?);
+        }
+        Command::RenderTrajectory {
+            trajectory,
+            scene,
+            out,
+            shard,
+            threads,
+        } => {
+            let cfg = config::load(&scene)?;
+            let shard = app::render_trajectory::Shard::parse(&shard).map_err(anyhow::Error::msg)?;
+            let poses = optistim::trajectory::read(&trajectory)?;
+            let bar = indicatif::ProgressBar::new(shard.range(poses.len()).len() as u64)
+                .with_style(
+                    indicatif::ProgressStyle::with_template(
+                        "{bar:40} {pos}/{len} frames, {per_sec}, {eta} left",
+                    )
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+                );
+            let report = app::render_trajectory::run(
+                &cfg,
+                &poses,
+                &out,
+                shard,
+                threads,
+                &mut |done, _| bar.set_position(done as u64),
+            )?;
+            bar.finish_and_clear();
+            println!("{}", serde_json::to_string(&report)?);
         }
         Command::Invert {
             images,

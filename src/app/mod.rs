@@ -6,7 +6,9 @@ pub mod calibrate;
 pub mod compare;
 pub mod invert;
 pub mod irradiance;
+pub mod products;
 pub mod render;
+pub mod render_trajectory;
 pub mod replay;
 pub mod show;
 pub mod stability;
@@ -47,6 +49,8 @@ pub enum AppError {
     Server(#[from] crate::server::ServerError),
     #[error("{0}: the scene has no [stimulator] section")]
     NoStimulator(String),
+    #[error("frame images: {0}")]
+    Images(String),
     #[error("{path}: cannot create the output folder: {source}")]
     OutDir {
         path: String,

@@ -4,7 +4,6 @@
 //! for ~80 lines of format.
 
 use super::IoError;
-use std::io::Write;
 use std::path::Path;
 
 /// A header value.
@@ -66,11 +65,16 @@ pub fn write(
     bitpix: Bitpix,
     cards: &[Card],
 ) -> Result<(), IoError> {
-    let p = path.display().to_string();
-    let err = |source| IoError::File {
-        path: p.clone(),
-        source,
-    };
+    std::fs::write(path, encode(width, height, data, bitpix, cards)).map_err(|source| {
+        IoError::File {
+            path: path.display().to_string(),
+            source,
+        }
+    })
+}
+
+/// The FITS file of [`write`] in memory.
+pub fn encode(width: usize, height: usize, data: &[f64], bitpix: Bitpix, cards: &[Card]) -> Vec<u8> {
     let mut header = String::new();
     header += &card("SIMPLE", &Value::Bool(true), "conforms to FITS standard");
     header += &card(
@@ -108,8 +112,7 @@ pub fn write(
     while bytes.len() % 2880 != 0 {
         bytes.push(0);
     }
-    let mut f = std::fs::File::create(path).map_err(err)?;
-    f.write_all(&bytes).map_err(err)
+    bytes
 }
 
 /// Reads back an image written by [`write`]: `(width, height, data top-down, header text)`.

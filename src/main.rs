@@ -56,6 +56,35 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         threads: usize,
     },
+    /// Exposure planning along a trajectory (Sec. 6.3.2, Eqs. 61-62): per frame the time
+    /// before saturation and before noise of every active pixel, the information loss against
+    /// exposure and the optimal bracket for X; writes frames.csv, loss.csv, pooled.csv,
+    /// exposure.png and exposure.svg, and prints the summary.
+    Exposure {
+        /// Pose stream, CSV or JSON lines.
+        trajectory: PathBuf,
+        /// Scene TOML (its camera's detector: full well, readout noise, exposure).
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long, default_value = "out/exposure")]
+        out: PathBuf,
+        /// X: the fraction of active pixels to keep above noise and below saturation.
+        #[arg(long, default_value_t = 0.95)]
+        keep: f64,
+        /// The detector's dynamic range [dB] (default: 20 log10(full well / readout sigma)).
+        #[arg(long)]
+        dnr_db: Option<f64>,
+        /// Only frames FROM..TO of the stream (indices, TO excluded), every EVERY-th.
+        #[arg(long, default_value_t = 0)]
+        from: usize,
+        #[arg(long)]
+        to: Option<usize>,
+        #[arg(long, default_value_t = 1)]
+        every: usize,
+        /// Render threads (0: all).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
     /// The speed-accuracy front: a grid of scenes x settings, each timed and measured against
     /// the scene's converged reference; writes sweep.csv, front.png and front.svg.
     Sweep {
@@ -296,15 +325,45 @@ fn run() -> anyhow::Result<()> {
                     )
                     .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
                 );
-            let report = app::render_trajectory::run(
-                &cfg,
-                &poses,
-                &out,
-                shard,
-                threads,
-                &mut |done, _| bar.set_position(done as u64),
-            )?;
+            let report =
+                app::render_trajectory::run(&cfg, &poses, &out, shard, threads, &mut |done, _| {
+                    bar.set_position(done as u64)
+                })?;
             bar.finish_and_clear();
+            println!("{}", serde_json::to_string(&report)?);
+        }
+        Command::Exposure {
+            trajectory,
+            scene,
+            out,
+            keep,
+            dnr_db,
+            from,
+            to,
+            every,
+            threads,
+        } => {
+            let cfg = config::load(&scene)?;
+            let all = optistim::trajectory::read(&trajectory)?;
+            let to = to.unwrap_or(all.len()).min(all.len());
+            anyhow::ensure!(
+                from < to,
+                "--from {from} --to {to}: no frames ({} in the stream)",
+                all.len()
+            );
+            anyhow::ensure!(every >= 1, "--every: at least 1");
+            let poses: Vec<_> = all[from..to].iter().step_by(every).copied().collect();
+            let bar = indicatif::ProgressBar::new(poses.len() as u64);
+            let plan = app::exposure::ExposurePlan {
+                keep,
+                dnr_db,
+                threads,
+            };
+            let report = app::exposure::run(&cfg, &poses, plan, &mut |done, _| {
+                bar.set_position(done as u64)
+            })?;
+            bar.finish_and_clear();
+            app::exposure::write(&report, &out)?;
             println!("{}", serde_json::to_string(&report)?);
         }
         Command::Invert {

@@ -138,6 +138,7 @@ def generate(
     num_cpus: int = 1,
     use_ray: bool = True,
     max_retries: int = 3,
+    ray_options: dict | None = None,
 ):
     """Renders every pose into ``out_uri`` and writes ``manifest.parquet`` there.
 
@@ -146,7 +147,9 @@ def generate(
     ``scene``: a ``Scene`` or the path of its TOML. ``out_uri``: a local folder or an object
     store URI (``s3://bucket/prefix``, through ``pyarrow.fs``). Each shard of
     ``frames_per_shard`` poses is one Ray task of ``num_cpus`` CPUs rendering with as many
-    threads (retried up to ``max_retries`` times); ``use_ray=False`` renders the shards here.
+    threads (retried up to ``max_retries`` times; ``ray_options`` adds Ray task options, such
+    as ``{"runtime_env": {"env_vars": {...}}}`` for the object store's credentials on the
+    workers); ``use_ray=False`` renders the shards here.
     Finished frames are kept, never rewritten. Returns the manifest as a ``pyarrow.Table``.
     """
     import pyarrow as pa
@@ -167,7 +170,8 @@ def generate(
 
         if not ray.is_initialized():
             ray.init(num_cpus=os.cpu_count(), include_dashboard=False)
-        task = ray.remote(num_cpus=num_cpus, max_retries=max_retries)(render_shard)
+        options = {"num_cpus": num_cpus, "max_retries": max_retries, **(ray_options or {})}
+        task = ray.remote(**options)(render_shard)
         scene_ref = ray.put(scene)
         refs = [task.remote(scene_ref, block, s, out_uri, num_cpus) for s, block in blocks]
         shards = ray.get(refs)
@@ -175,9 +179,9 @@ def generate(
         shards = [render_shard(scene, block, s, out_uri, num_cpus) for s, block in blocks]
     records = sorted((r for shard in shards for r in shard), key=lambda r: r["index"])
     table = pa.Table.from_pylist(records, schema=_SCHEMA or _schema())
-    with fs.open_output_stream(f"{root}/.manifest.parquet.partial") as f:
-        pq.write_table(table, f)
-    fs.move(f"{root}/.manifest.parquet.partial", f"{root}/manifest.parquet")
+    buffer = pa.BufferOutputStream()
+    pq.write_table(table, buffer)
+    _put(fs, f"{root}/manifest.parquet", buffer.getvalue().to_pybytes())
     return table
 
 

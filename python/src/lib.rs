@@ -56,10 +56,7 @@ fn render_err(e: impl std::fmt::Display) -> PyErr {
 
 /// A JSON text as Python objects (`json.loads`).
 fn from_json(py: Python<'_>, text: &str) -> PyResult<Py<PyAny>> {
-    Ok(py
-        .import("json")?
-        .call_method1("loads", (text,))?
-        .unbind())
+    Ok(py.import("json")?.call_method1("loads", (text,))?.unbind())
 }
 
 // ---------------------------------------------------------------------------------------
@@ -112,16 +109,23 @@ impl Scene {
     /// working folder).
     #[staticmethod]
     #[pyo3(signature = (scene, base_dir = None))]
-    fn from_dict(py: Python<'_>, scene: &Bound<'_, PyDict>, base_dir: Option<PathBuf>) -> PyResult<Scene> {
+    fn from_dict(
+        py: Python<'_>,
+        scene: &Bound<'_, PyDict>,
+        base_dir: Option<PathBuf>,
+    ) -> PyResult<Scene> {
         let json: String = py
             .import("json")?
             .call_method1("dumps", (scene,))?
             .extract()
-            .map_err(|_| scene_err("the scene dict is not JSON-like (str keys; numbers, strings, lists, dicts)"))?;
-        let value: serde_json::Value = serde_json::from_str(&json)
-            .map_err(|e| scene_err(format!("the scene dict: {e}")))?;
-        let text = value_to_toml(&value)
-            .map_err(|e| scene_err(format!("the scene dict: {e}")))?;
+            .map_err(|_| {
+                scene_err(
+                    "the scene dict is not JSON-like (str keys; numbers, strings, lists, dicts)",
+                )
+            })?;
+        let value: serde_json::Value =
+            serde_json::from_str(&json).map_err(|e| scene_err(format!("the scene dict: {e}")))?;
+        let text = value_to_toml(&value).map_err(|e| scene_err(format!("the scene dict: {e}")))?;
         let base = base_dir.unwrap_or_else(|| PathBuf::from("."));
         let file = base.join("<scene dict>").display().to_string();
         Scene::parse(Source { text, file })
@@ -237,9 +241,14 @@ impl Pose {
         sun_position_m: [f64; 3],
         frame_id: u64,
     ) -> PyResult<Pose> {
-        optistim::trajectory::pose_from(frame_id, camera_position_m, quaternion_wxyz, sun_position_m)
-            .map(Pose)
-            .map_err(|e| pose_err(format!("pose: {e}")))
+        optistim::trajectory::pose_from(
+            frame_id,
+            camera_position_m,
+            quaternion_wxyz,
+            sun_position_m,
+        )
+        .map(Pose)
+        .map_err(|e| pose_err(format!("pose: {e}")))
     }
 
     #[getter]
@@ -272,7 +281,12 @@ impl Pose {
 
 /// A pose from a row of 7 (camera x, y, z [m], qw, qx, qy, qz; the scene's Sun) or 10
 /// (then Sun x, y, z [m]) numbers.
-fn pose_from_row(row: &[f64], scene_sun: [f64; 3], frame_id: u64, what: &str) -> PyResult<RustPose> {
+fn pose_from_row(
+    row: &[f64],
+    scene_sun: [f64; 3],
+    frame_id: u64,
+    what: &str,
+) -> PyResult<RustPose> {
     let sun = match row.len() {
         7 => scene_sun,
         10 => [row[7], row[8], row[9]],
@@ -292,7 +306,11 @@ fn pose_from_row(row: &[f64], scene_sun: [f64; 3], frame_id: u64, what: &str) ->
 }
 
 /// `render`'s pose argument: a `Pose`, a sequence of 7 or 10 numbers, or `None` (the scene's).
-fn pose_arg(scene: &Scene, pose: Option<&Bound<'_, PyAny>>, frame_id: Option<u64>) -> PyResult<RustPose> {
+fn pose_arg(
+    scene: &Scene,
+    pose: Option<&Bound<'_, PyAny>>,
+    frame_id: Option<u64>,
+) -> PyResult<RustPose> {
     let mut p = match pose {
         None => scene.config.pose,
         Some(obj) => {
@@ -358,7 +376,12 @@ fn with_renderer<T>(
 }
 
 /// Renders and runs the detector with the GIL released.
-fn render_pose(py: Python<'_>, scene: &Scene, pose: RustPose, threads: Option<usize>) -> PyResult<Frame> {
+fn render_pose(
+    py: Python<'_>,
+    scene: &Scene,
+    pose: RustPose,
+    threads: Option<usize>,
+) -> PyResult<Frame> {
     let config = scene.config.clone();
     let planner = scene.planner.clone();
     let threads = resolve_threads(threads);
@@ -423,7 +446,11 @@ impl Frame {
         let shape = [meta.height, meta.width];
         Ok(Frame {
             power: images.power_w.into_pyarray(py).reshape(shape)?.unbind(),
-            signal: images.signal_e_per_s.into_pyarray(py).reshape(shape)?.unbind(),
+            signal: images
+                .signal_e_per_s
+                .into_pyarray(py)
+                .reshape(shape)?
+                .unbind(),
             depth: images.depth_m.into_pyarray(py).reshape(shape)?.unbind(),
             dn: images.dn.into_pyarray(py).reshape(shape)?.unbind(),
             config,
@@ -445,7 +472,9 @@ impl Frame {
             ("dn", dn.shape()),
         ] {
             if s != shape {
-                return Err(render_err(format!("frame.{name}: shape {s:?}, the frame is {shape:?}")));
+                return Err(render_err(format!(
+                    "frame.{name}: shape {s:?}, the frame is {shape:?}"
+                )));
             }
         }
         fn slice<'a, T>(r: Result<&'a [T], numpy::AsSliceError>, name: &str) -> PyResult<&'a [T]> {
@@ -500,7 +529,10 @@ impl Frame {
     /// Every setting the frame was rendered with (the planner's under a budget).
     #[getter]
     fn settings(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        from_json(py, &serde_json::to_string(&self.meta.settings).map_err(render_err)?)
+        from_json(
+            py,
+            &serde_json::to_string(&self.meta.settings).map_err(render_err)?,
+        )
     }
     /// The frame's error report under `fidelity = "budget"`: the chosen rung, the predicted
     /// relative errors (`predicted`: median and p99 per lit pixel, total), the budget and
@@ -622,7 +654,11 @@ fn render_trajectory(
 }
 
 /// Poses of a file path or an (N, 7) / (N, 10) array, with their times.
-fn read_poses(py: Python<'_>, scene: &Scene, poses: &Bound<'_, PyAny>) -> PyResult<Vec<(f64, RustPose)>> {
+fn read_poses(
+    py: Python<'_>,
+    scene: &Scene,
+    poses: &Bound<'_, PyAny>,
+) -> PyResult<Vec<(f64, RustPose)>> {
     if is_path(py, poses)? {
         let path: PathBuf = poses.extract()?;
         return optistim::trajectory::read(&path).map_err(pose_err);
@@ -631,7 +667,12 @@ fn read_poses(py: Python<'_>, scene: &Scene, poses: &Bound<'_, PyAny>) -> PyResu
     let sun = scene.config.pose.sun_position_m.to_array();
     rows.iter()
         .enumerate()
-        .map(|(i, r)| Ok((i as f64, pose_from_row(r, sun, i as u64, &format!("poses[{i}]"))?)))
+        .map(|(i, r)| {
+            Ok((
+                i as f64,
+                pose_from_row(r, sun, i as u64, &format!("poses[{i}]"))?,
+            ))
+        })
         .collect()
 }
 
@@ -640,7 +681,11 @@ fn read_poses(py: Python<'_>, scene: &Scene, poses: &Bound<'_, PyAny>) -> PyResu
 /// rebuilt from a row is the pose `render_trajectory` renders, bit for bit. This is what
 /// `optistim.dataset` shards.
 #[pyfunction]
-fn load_poses<'py>(py: Python<'py>, scene: &Scene, poses: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+fn load_poses<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    poses: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let rows: Vec<[f64; 11]> = if is_path(py, poses)? {
         let path: PathBuf = poses.extract()?;
         optistim::trajectory::read_rows(&path)
@@ -660,8 +705,14 @@ fn load_poses<'py>(py: Python<'py>, scene: &Scene, poses: &Bound<'py, PyAny>) ->
             .enumerate()
             .map(|(i, r)| {
                 pose_from_row(r, sun, i as u64, &format!("poses[{i}]"))?;
-                let s = if r.len() == 10 { [r[7], r[8], r[9]] } else { sun };
-                Ok([i as f64, r[0], r[1], r[2], r[3], r[4], r[5], r[6], s[0], s[1], s[2]])
+                let s = if r.len() == 10 {
+                    [r[7], r[8], r[9]]
+                } else {
+                    sun
+                };
+                Ok([
+                    i as f64, r[0], r[1], r[2], r[3], r[4], r[5], r[6], s[0], s[1], s[2],
+                ])
             })
             .collect::<PyResult<_>>()?
     };
@@ -680,6 +731,78 @@ fn array_rows(obj: &Bound<'_, PyAny>) -> PyResult<Vec<Vec<f64>>> {
     })
 }
 
+/// Exposure planning along `poses` (Sec. 6.3.2, Eqs. 61-62), as `optistim exposure`.
+///
+/// Returns a dict: `keep`, `dnr_db`, `full_well_e`, `noise_floor_e`, `scene_exposure_s`,
+/// `frames` (per frame: `t_lo_s` and `t_hi_s`, the bracket's ends; `active_px`; the loss at
+/// the scene's exposure), `bracket_s` (the intersection over frames, or None), and as NumPy
+/// arrays `exposures_s` (G), `saturated` and `under_noise` (N x G: the fraction of each
+/// frame's active pixels lost at each exposure), `pooled_saturated` and
+/// `pooled_under_noise` (G: over every frame). With `out`, also writes the CSV files and the
+/// chart there.
+#[pyfunction]
+#[pyo3(signature = (scene, poses, *, keep = 0.95, dnr_db = None, threads = None, out = None))]
+fn exposure<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    poses: &Bound<'py, PyAny>,
+    keep: f64,
+    dnr_db: Option<f64>,
+    threads: Option<usize>,
+    out: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyDict>> {
+    use optistim::app::exposure as ex;
+    let poses = read_poses(py, scene, poses)?;
+    let config = scene.config.clone();
+    let plan = ex::ExposurePlan {
+        keep,
+        dnr_db,
+        threads: resolve_threads(threads),
+    };
+    let report = py
+        .detach(|| {
+            let r = ex::run(&config, &poses, plan, &mut |_, _| {})?;
+            if let Some(dir) = &out {
+                ex::write(&r, dir)?;
+            }
+            Ok::<_, optistim::app::AppError>(r)
+        })
+        .map_err(|e| match e {
+            optistim::app::AppError::Exposure(_) => raise("OptistimError", e.to_string()),
+            e => render_err(e),
+        })?;
+    let d: Bound<'py, PyDict> =
+        from_json(py, &serde_json::to_string(&report).map_err(render_err)?)?
+            .into_bound(py)
+            .cast_into()
+            .map_err(PyErr::from)?;
+    let g = report.exposures_s.len();
+    let n = report.loss.len();
+    let grid = |f: fn(&ex::Loss) -> f64| -> Vec<f64> {
+        report
+            .loss
+            .iter()
+            .flat_map(|row| row.iter().map(f))
+            .collect()
+    };
+    d.set_item("exposures_s", report.exposures_s.clone().into_pyarray(py))?;
+    d.set_item(
+        "saturated",
+        grid(|l| l.saturated).into_pyarray(py).reshape([n, g])?,
+    )?;
+    d.set_item(
+        "under_noise",
+        grid(|l| l.under_noise).into_pyarray(py).reshape([n, g])?,
+    )?;
+    let pooled = |f: fn(&ex::Loss) -> f64| -> Vec<f64> { report.pooled.iter().map(f).collect() };
+    d.set_item("pooled_saturated", pooled(|l| l.saturated).into_pyarray(py))?;
+    d.set_item(
+        "pooled_under_noise",
+        pooled(|l| l.under_noise).into_pyarray(py),
+    )?;
+    Ok(d)
+}
+
 // ---------------------------------------------------------------------------------------
 
 #[pymodule]
@@ -693,5 +816,6 @@ fn _optistim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_trajectory, m)?)?;
     m.add_function(wrap_pyfunction!(render_threads, m)?)?;
     m.add_function(wrap_pyfunction!(load_poses, m)?)?;
+    m.add_function(wrap_pyfunction!(exposure, m)?)?;
     Ok(())
 }

@@ -127,3 +127,55 @@ def test_generate_without_ray_and_from_a_sampler(small_scene_file, tmp_path):
                                   sampler.sample()[:, 1:4])
     # Sharded CLI runs of the same frames make the same dataset as one run.
     assert finished(tmp_path / "local") == list(range(6))
+
+
+CREDENTIALS = dict(AWS_ACCESS_KEY_ID="test", AWS_SECRET_ACCESS_KEY="test", AWS_DEFAULT_REGION="us-east-1")
+
+
+@pytest.fixture
+def s3_uri(monkeypatch):
+    """A bucket on an S3 server of our own (moto, on loopback), as a pyarrow URI."""
+    moto_server = pytest.importorskip("moto.server")
+    import socket
+
+    import boto3
+
+    for k, v in CREDENTIALS.items():
+        monkeypatch.setenv(k, v)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    client = boto3.client("s3", endpoint_url=f"http://127.0.0.1:{port}")
+    client.create_bucket(Bucket="bench")
+    yield f"s3://bench/sets/nrho?endpoint_override=127.0.0.1:{port}&scheme=http&region=us-east-1", client
+    server.stop()
+
+
+def test_object_store_dataset_equals_local(ray_cluster, s3_uri, small_scene_file, tmp_path):
+    uri, client = s3_uri
+    scene = optistim.Scene.from_toml(small_scene_file)
+    sampler = dataset.UniformPoseSampler(n=8, range_m=(4e6, 2e7), phase_deg=(0, 120),
+                                         off_pointing_deg=(0, 3), seed=11)
+    workers = {"runtime_env": {"env_vars": CREDENTIALS}}
+    table = dataset.generate(sampler, scene, uri, frames_per_shard=3, ray_options=workers)
+    local = dataset.generate(sampler, scene, tmp_path / "local", frames_per_shard=3, use_ray=False)
+    assert table.equals(local)
+
+    def objects():
+        listed = client.list_objects_v2(Bucket="bench", Prefix="sets/nrho/")["Contents"]
+        return {o["Key"][len("sets/nrho/"):]: (o["ETag"], o["LastModified"]) for o in listed}
+
+    first = objects()
+    expected = {f"frames/{i:06d}/{n}" for i in range(8) for n in FILES} | {"manifest.parquet"}
+    assert set(first) - {"frames/", "frames"} >= expected
+    for key in expected:
+        body = client.get_object(Bucket="bench", Key=f"sets/nrho/{key}")["Body"].read()
+        assert body == (tmp_path / "local" / key).read_bytes(), key
+    # A rerun finds every frame finished and puts only the manifest again.
+    time.sleep(1.1)  # S3's LastModified has 1 s resolution
+    dataset.generate(sampler, scene, uri, frames_per_shard=3, ray_options=workers)
+    again = objects()
+    rewritten = sorted(k for k in expected if again[k] != first[k])
+    assert rewritten == ["manifest.parquet"], rewritten

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod bench_endpoints;
 pub mod calibrate;
 pub mod compare;
+pub mod exposure;
 pub mod invert;
 pub mod irradiance;
 pub mod products;
@@ -49,6 +50,8 @@ pub enum AppError {
     Server(#[from] crate::server::ServerError),
     #[error("{0}: the scene has no [stimulator] section")]
     NoStimulator(String),
+    #[error("exposure: {0}")]
+    Exposure(String),
     #[error("frame images: {0}")]
     Images(String),
     #[error("{path}: cannot create the output folder: {source}")]

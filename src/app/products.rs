@@ -433,7 +433,11 @@ fn header(config: &Config, meta: &FrameMeta) -> Vec<Card> {
         f("PIXSIZEU", i.pixel_pitch_m[0], "pixel pitch u [m]"),
         f("PIXSIZEV", i.pixel_pitch_m[1], "pixel pitch v [m]"),
         f("EXPTIME", s.camera.detector.exposure_s, "exposure [s]"),
-        f("PL2W", meta.radiance_w, "W per sr m^2 of (P/L): int L_e dlambda"),
+        f(
+            "PL2W",
+            meta.radiance_w,
+            "W per sr m^2 of (P/L): int L_e dlambda",
+        ),
         f(
             "PL2SIG",
             meta.signal_factor,

@@ -2,8 +2,8 @@
 //! (e-/s), `depth.fits` (m, NaN where empty), `image.png` (DN), and a JSON summary.
 
 use super::AppError;
-use crate::config::Config;
 use super::products;
+use crate::config::Config;
 use crate::fidelity::budget::Plan;
 use crate::io::fits::{self, Bitpix};
 use crate::raycast::reference::{self, ReferenceReport, ReferenceSettings};

@@ -74,7 +74,13 @@ pub fn write(
 }
 
 /// The FITS file of [`write`] in memory.
-pub fn encode(width: usize, height: usize, data: &[f64], bitpix: Bitpix, cards: &[Card]) -> Vec<u8> {
+pub fn encode(
+    width: usize,
+    height: usize,
+    data: &[f64],
+    bitpix: Bitpix,
+    cards: &[Card],
+) -> Vec<u8> {
     let mut header = String::new();
     header += &card("SIMPLE", &Value::Bool(true), "conforms to FITS standard");
     header += &card(

@@ -18,7 +18,7 @@ pub struct Panel {
     pub peers: Vec<Peer>,
 }
 
-const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+pub const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
 
 type Figure = (&'static str, fn(&Row) -> f64, fn(&Peer) -> Option<f64>);
 

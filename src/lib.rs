@@ -29,7 +29,7 @@
 //! | [`background`] | cooperative pause points: the daemon's background image work pauses between slices while a frame is in flight |
 //! | [`stats`] | quantiles of timing samples (benchmarks, daemon status, replay reports) |
 //! | [`server`] | the daemon: pose protocol (binary frames with CRC-32, JSON lines), TCP and serial connections, access (token, non-loopback binds, scene folders), the frame thread (free-running, lockstep, hold and trigger), HTTP control and metrics (a background thread; images made once per frame by `views`), the recording |
-//! | [`app`] | the commands behind the binary: `render` (the quadrangle pipeline or `--reference`), `sweep` (the speed-accuracy front and its chart; `--fit` the planner's error model), `verify-budget` (the planner against the reference over a pose stream), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
+//! | [`app`] | the commands behind the binary: `products` (a pose's products and their files, shared by `render`, `render-trajectory` and the Python package in `python/`), `render` (the quadrangle pipeline or `--reference`), `render-trajectory` (a resumable dataset folder, by shards), `exposure` (exposure planning, Eqs. 61-62), `sweep` (the speed-accuracy front and its chart; `--fit` the planner's error model), `verify-budget` (the planner against the reference over a pose stream), `stability` (the suite of hard cases), `bench`, `bench-display`, `show`, `calibrate`, `compare`, `replay` |
 //!
 //! # Data flow of one frame
 //!
@@ -42,7 +42,10 @@
 //!                                        │
 //!   detector: S = (P/L)·∫QE·T·λ/(hc)·L_e dλ  → electrons (+noise) → DN
 //!                                        │
+//!   app::products: power, signal, depth, DN and their files (the same bytes everywhere)
 //!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
+//!   app::render_trajectory: frames/NNNNNN/ + manifest (and python/: optistim.render,
+//!     optistim.dataset on Ray, the same files)
 //!
 //!   (a mesh body or several bodies: Renderer::render hands the frame to raycast::sampled,
 //!    with a mesh's scattered light from irradiance; the same Frame comes out)

@@ -87,27 +87,35 @@ pub fn finished(root: &Path, index: u64) -> Option<FrameRecord> {
         .filter(|r| r.index == index)
 }
 
-/// Renders frame `index` of a trajectory into `root` and returns its record.
-pub fn render_frame(
+/// Writes a rendered frame into `root` (the images, then `frame.json`) and returns its record.
+pub fn write_frame(
     config: &Config,
-    planner: Option<&crate::fidelity::budget::Planner>,
-    renderer: &mut Renderer,
     root: &Path,
     index: u64,
     t_s: f64,
-    pose: &Pose,
+    meta: &products::FrameMeta,
+    images: &products::ImageSet,
 ) -> Result<FrameRecord, AppError> {
-    let (meta, images) = products::make(config, planner, pose, renderer)?;
-    let files = products::encode(config, &meta, images.view())?;
-    let record = FrameRecord::new(config, &meta, images.view(), index, t_s);
+    let files = products::encode(config, meta, images.view())?;
+    let record = FrameRecord::new(config, meta, images.view(), index, t_s);
     let dir = root.join(products::frame_dir(index));
     products::write_atomically(&dir, &files)?;
     products::write_atomically(&dir, &[("frame.json", record.to_json().into_bytes())])?;
     Ok(record)
 }
 
+/// A rendered frame on its way to the writer.
+struct Rendered {
+    index: u64,
+    t_s: f64,
+    meta: products::FrameMeta,
+    images: products::ImageSet,
+}
+
 /// Renders the frames of `shard` of `poses` (time [s] and pose, frame ids as read) into
-/// `out`, skipping finished ones; `on_frame(done, total)` after each frame.
+/// `out`, skipping finished ones; `on_frame(done, total)` after each frame. Frames are
+/// encoded and written by a second thread while the next one renders (at most two wait), so
+/// the serial file work overlaps the render instead of leaving cores idle.
 pub fn run(
     config: &Config,
     poses: &[(f64, Pose)],
@@ -126,29 +134,67 @@ pub fn run(
     let planner = config.planner();
     let t0 = Instant::now();
     let (mut rendered, mut resumed) = (0, 0);
-    let mut records = Vec::with_capacity(total);
-    for (done, index) in range.enumerate() {
-        let (t_s, pose) = &poses[index];
-        let record = match finished(out, index as u64) {
-            Some(r) => {
+    let records = std::thread::scope(|scope| {
+        let (to_writer, inbox) = std::sync::mpsc::sync_channel::<Rendered>(1);
+        let (to_main, written) = std::sync::mpsc::channel::<Result<FrameRecord, AppError>>();
+        scope.spawn(move || {
+            for f in inbox {
+                let r = write_frame(config, out, f.index, f.t_s, &f.meta, &f.images);
+                let failed = r.is_err();
+                if to_main.send(r).is_err() || failed {
+                    return;
+                }
+            }
+        });
+        // Records by position in the shard: finished ones now, rendered ones as written
+        // (the writer answers in the order it was handed frames).
+        let mut records: Vec<Option<FrameRecord>> = vec![None; total];
+        let mut queued = std::collections::VecDeque::new();
+        let mut done = 0;
+        for (slot, index) in range.enumerate() {
+            let (t_s, pose) = &poses[index];
+            if let Some(r) = finished(out, index as u64) {
                 resumed += 1;
-                r
-            }
-            None => {
+                records[slot] = Some(r);
+                done += 1;
+            } else {
                 rendered += 1;
-                render_frame(
-                    config,
-                    planner.as_ref(),
-                    &mut renderer,
-                    out,
-                    index as u64,
-                    *t_s,
-                    pose,
-                )?
+                let (meta, images) = products::make(config, planner.as_ref(), pose, &mut renderer)?;
+                queued.push_back(slot);
+                let job = Rendered {
+                    index: index as u64,
+                    t_s: *t_s,
+                    meta,
+                    images,
+                };
+                if to_writer.send(job).is_err() {
+                    break; // the writer stopped on an error, which waits in `written`
+                }
             }
-        };
-        records.push(record);
-        on_frame(done + 1, total);
+            while let Some(&slot) = queued.front() {
+                let Ok(r) = written.try_recv() else { break };
+                queued.pop_front();
+                records[slot] = Some(r?);
+                done += 1;
+            }
+            on_frame(done, total);
+        }
+        drop(to_writer);
+        while let Some(slot) = queued.pop_front() {
+            let Ok(r) = written.recv() else { break };
+            records[slot] = Some(r?);
+            done += 1;
+            on_frame(done, total);
+        }
+        Ok::<_, AppError>(records)
+    })?;
+    let records: Vec<FrameRecord> = records.into_iter().flatten().collect();
+    if records.len() != total {
+        return Err(AppError::Images(format!(
+            "{} of {total} frames written to {}",
+            records.len(),
+            out.display()
+        )));
     }
     let seconds = t0.elapsed().as_secs_f64();
     let manifest: String = records.iter().map(|r| r.to_json() + "\n").collect();

@@ -91,6 +91,17 @@ def _finished(fs, root: str, index: int) -> dict | None:
     return record if record.get("index") == index else None
 
 
+def _write_frame(fs, root: str, index: int, t_s: float, frame) -> dict:
+    """Writes a rendered frame's files, then its ``frame.json``; returns its record."""
+    directory = _frame_dir(root, index)
+    fs.create_dir(directory, recursive=True)
+    for name, data in frame.encode().items():
+        _put(fs, f"{directory}/{name}", data)
+    text = frame.record(index, t_s)
+    _put(fs, f"{directory}/{_MARKER}", text.encode())
+    return json.loads(text)
+
+
 def render_shard(
     scene: Scene,
     poses: np.ndarray,
@@ -100,24 +111,28 @@ def render_shard(
 ) -> list[dict]:
     """Renders the frames ``first_index ..`` of ``poses`` (rows of t, camera, quaternion
     w, x, y, z, Sun; as ``load_poses`` gives) into ``out_uri``, skipping finished ones;
-    returns their records."""
+    returns their records. A frame is written by a second thread while the next renders
+    (rendering and pyarrow's writes release the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     fs, root = _filesystem(out_uri)
     records = []
-    for k, row in enumerate(np.asarray(poses, dtype=np.float64)):
-        index = first_index + k
-        record = _finished(fs, root, index)
-        if record is None:
+    with ThreadPoolExecutor(max_workers=1) as writer:
+        pending = None
+        for k, row in enumerate(np.asarray(poses, dtype=np.float64)):
+            index = first_index + k
+            record = _finished(fs, root, index)
+            if record is not None:
+                records.append(record)
+                continue
             pose = Pose(row[1:4].tolist(), row[4:8].tolist(), row[8:11].tolist(), frame_id=index)
             frame = render(scene, pose, threads=threads)
-            directory = _frame_dir(root, index)
-            fs.create_dir(directory, recursive=True)
-            for name, data in frame.encode().items():
-                _put(fs, f"{directory}/{name}", data)
-            text = frame.record(index, float(row[0]))
-            _put(fs, f"{directory}/{_MARKER}", text.encode())
-            record = json.loads(text)
-        records.append(record)
-    return records
+            if pending is not None:
+                records.append(pending.result())
+            pending = writer.submit(_write_frame, fs, root, index, float(row[0]), frame)
+        if pending is not None:
+            records.append(pending.result())
+    return sorted(records, key=lambda r: r["index"])
 
 
 def _poses(source: Any, scene: Scene) -> np.ndarray:

@@ -193,3 +193,24 @@ def test_uniform_pose_sampler():
     scene = optistim.Scene.from_dict(small_scene_dict(64))
     frame = optistim.render(scene, list(a[0, 1:]))
     assert abs(frame.stats["phase_deg"] - phase[0]) < 1e-6
+
+
+def test_budgeted_frames_carry_their_error_report(tmp_path):
+    import json
+
+    scene = optistim.Scene.from_toml(REPO / "config" / "nrho_budget.toml")
+    assert scene.budgeted
+    frame = optistim.render(scene)
+    report = frame.error
+    assert set(report["predicted"]) == {"median", "p99", "total"}
+    assert report["budget"]["median"] > 0 and isinstance(report["meets_budget"], bool)
+    # The frame was rendered with the planner's rung, and says so everywhere.
+    assert frame.settings["points"]["per_pixel"] == report["points_per_pixel"]
+    record = json.loads(frame.record(5, 1.5))
+    assert record["fidelity"] == "budget"
+    assert record["predicted_median"] == report["predicted"]["median"]
+    header = frame.encode()["power.fits"][:2880 * 4].decode("ascii")
+    assert "FIDELITY= 'budget  '" in header and "PREDMED" in header
+    # Fixed settings: no model ran, no report.
+    fixed = optistim.render(optistim.Scene.from_dict(small_scene_dict(64)))
+    assert fixed.error is None and json.loads(fixed.record(0))["predicted_median"] is None

@@ -32,19 +32,20 @@ fn files(root: &Path) -> Vec<(String, Vec<u8>)> {
     out
 }
 
+/// One run over every pose into `root`, with 2 threads.
+fn whole_run(
+    config: &optistim::config::Config,
+    poses: &[(f64, optistim::scene::Pose)],
+    root: &Path,
+) -> Result<render_trajectory::TrajectoryReport, optistim::app::AppError> {
+    render_trajectory::run(config, poses, root, Shard::WHOLE, 2, &mut |_, _| {})
+}
+
 #[test]
 fn shards_and_reruns_make_the_same_dataset() {
     let (config, poses) = setup();
     let whole = common::TempDir::new("traj-whole");
-    let report = render_trajectory::run(
-        &config,
-        &poses,
-        &whole.join(""),
-        Shard::WHOLE,
-        2,
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let report = whole_run(&config, &poses, &whole.join("")).unwrap();
     assert_eq!(
         (report.frames, report.rendered, report.resumed),
         (poses.len(), poses.len(), 0)
@@ -66,15 +67,7 @@ fn shards_and_reruns_make_the_same_dataset() {
     assert_eq!(manifest.lines().count(), poses.len());
     // A rerun renders nothing and rewrites nothing.
     let before = files(&whole.join(""));
-    let again = render_trajectory::run(
-        &config,
-        &poses,
-        &whole.join(""),
-        Shard::WHOLE,
-        2,
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let again = whole_run(&config, &poses, &whole.join("")).unwrap();
     assert_eq!((again.rendered, again.resumed), (0, poses.len()));
     assert_eq!(files(&whole.join("")), before);
 }
@@ -87,9 +80,7 @@ fn a_frame_that_cannot_be_written_stops_the_run_with_its_name() {
     std::fs::create_dir_all(root.join("frames")).unwrap();
     // Frame 3's folder is a file: its images cannot be written.
     std::fs::write(root.join("frames/000003"), b"in the way").unwrap();
-    let err = render_trajectory::run(&config, &poses, &root, Shard::WHOLE, 2, &mut |_, _| {})
-        .unwrap_err()
-        .to_string();
+    let err = whole_run(&config, &poses, &root).unwrap_err().to_string();
     assert!(err.contains("000003"), "{err}");
     // The frames before it are finished and whole; no manifest claims the run is complete.
     for i in 0..3 {
@@ -98,7 +89,6 @@ fn a_frame_that_cannot_be_written_stops_the_run_with_its_name() {
     assert!(!root.join("manifest.jsonl").exists());
     // Once the obstacle is gone, a rerun completes what is missing only.
     std::fs::remove_file(root.join("frames/000003")).unwrap();
-    let report =
-        render_trajectory::run(&config, &poses, &root, Shard::WHOLE, 2, &mut |_, _| {}).unwrap();
+    let report = whole_run(&config, &poses, &root).unwrap();
     assert!(report.resumed >= 3 && report.rendered + report.resumed == poses.len());
 }

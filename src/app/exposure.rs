@@ -327,6 +327,37 @@ fn x_range(report: &ExposureReport) -> (f64, f64) {
     }
 }
 
+type Chart<'a, DB> =
+    ChartContext<'a, DB, Cartesian2d<LogCoord<f64>, plotters::coord::types::RangedCoordf64>>;
+
+/// Draws `points` as a line of `colour`, with its legend entry.
+fn line<DB: DrawingBackend>(
+    chart: &mut Chart<'_, DB>,
+    points: Vec<(f64, f64)>,
+    colour: RGBColor,
+    label: String,
+) -> Result<(), String> {
+    chart
+        .draw_series(LineSeries::new(points, colour.stroke_width(2)))
+        .map_err(|e| e.to_string())?
+        .label(label)
+        .legend(move |(x, y)| {
+            PathElement::new(vec![(x - 8, y), (x + 8, y)], colour.stroke_width(2))
+        });
+    Ok(())
+}
+
+/// The chart's legend box.
+fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 12))
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
 fn draw_on<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     r: &ExposureReport,
@@ -406,32 +437,26 @@ fn draw_on<DB: DrawingBackend>(
         .filter(|f| f.t_hi_s.is_finite())
         .map(|f| (f.t_hi_s, f.t_s))
         .collect();
-    chart
-        .draw_series(LineSeries::new(lo, BLUE.stroke_width(2)))
-        .map_err(e)?
-        .label(format!("t_lo: {pct} % above noise (Eq. 62)"))
-        .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], BLUE.stroke_width(2)));
-    chart
-        .draw_series(LineSeries::new(hi, BLACK.stroke_width(2)))
-        .map_err(e)?
-        .label(format!("t_hi: {} % saturated (Eq. 61)", 100.0 - pct))
-        .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], BLACK.stroke_width(2)));
+    line(
+        &mut chart,
+        lo,
+        BLUE,
+        format!("t_lo: {pct} % above noise (Eq. 62)"),
+    )?;
+    line(
+        &mut chart,
+        hi,
+        BLACK,
+        format!("t_hi: {} % saturated (Eq. 61)", 100.0 - pct),
+    )?;
     let te = r.scene_exposure_s;
-    chart
-        .draw_series(LineSeries::new(
-            vec![(te, t0), (te, t1)],
-            GREEN.stroke_width(2),
-        ))
-        .map_err(e)?
-        .label("the scene's exposure")
-        .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], GREEN.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 12))
-        .draw()
-        .map_err(e)?;
+    line(
+        &mut chart,
+        vec![(te, t0), (te, t1)],
+        GREEN,
+        "the scene's exposure".into(),
+    )?;
+    legend(&mut chart)?;
 
     let mut pooled = ChartBuilder::on(&bottom)
         .caption(
@@ -470,34 +495,20 @@ fn draw_on<DB: DrawingBackend>(
                 Rectangle::new([(x - 8, y - 5), (x + 8, y + 5)], GREEN.mix(0.3).filled())
             });
     }
-    pooled
-        .draw_series(LineSeries::new(
-            curve(|l| l.saturated),
-            BLACK.stroke_width(2),
-        ))
-        .map_err(e)?
-        .label("saturated")
-        .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], BLACK.stroke_width(2)));
-    pooled
-        .draw_series(LineSeries::new(
-            curve(|l| l.under_noise),
-            BLUE.stroke_width(2),
-        ))
-        .map_err(e)?
-        .label("under noise")
-        .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], BLUE.stroke_width(2)));
-    pooled
-        .draw_series(LineSeries::new(curve(Loss::total), RED.stroke_width(2)))
-        .map_err(e)?
-        .label("lost")
-        .legend(|(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], RED.stroke_width(2)));
-    pooled
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 12))
-        .draw()
-        .map_err(e)?;
+    line(
+        &mut pooled,
+        curve(|l| l.saturated),
+        BLACK,
+        "saturated".into(),
+    )?;
+    line(
+        &mut pooled,
+        curve(|l| l.under_noise),
+        BLUE,
+        "under noise".into(),
+    )?;
+    line(&mut pooled, curve(Loss::total), RED, "lost".into())?;
+    legend(&mut pooled)?;
     root.present().map_err(e)
 }
 

@@ -181,10 +181,16 @@ def generate(
     starts = list(range(0, len(poses), frames_per_shard))
     blocks = [(s, poses[s : s + frames_per_shard]) for s in starts]
     if use_ray:
-        import ray
+        try:
+            import ray
+        except ImportError as e:
+            raise ImportError(
+                "optistim.dataset.generate on Ray needs Ray: pip install './python[ray]', "
+                "or pass use_ray=False to render in this process"
+            ) from e
 
         if not ray.is_initialized():
-            ray.init(num_cpus=os.cpu_count(), include_dashboard=False)
+            ray.init(num_cpus=len(os.sched_getaffinity(0)), include_dashboard=False)
         options = {"num_cpus": num_cpus, "max_retries": max_retries, **(ray_options or {})}
         task = ray.remote(**options)(render_shard)
         scene_ref = ray.put(scene)

@@ -7,6 +7,20 @@ use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// Prints a line of a command's result to stdout. A closed pipe (`optistim ... | head`)
+/// ends the output quietly, as in other command-line tools, instead of panicking as
+/// `println!` does; any other write error is the command's error.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        if let Err(e) = writeln!(std::io::stdout(), $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            return Err(e.into());
+        }
+    }};
+}
+
 #[derive(Parser)]
 #[command(
     version,
@@ -306,7 +320,7 @@ fn run() -> anyhow::Result<()> {
                 app::render::Method::Quadrangle
             };
             let summary = app::render::run(&cfg, &scene.display().to_string(), &out, method)?;
-            println!("{}", serde_json::to_string(&summary)?);
+            out!("{}", serde_json::to_string(&summary)?);
         }
         Command::RenderTrajectory {
             trajectory,
@@ -330,7 +344,7 @@ fn run() -> anyhow::Result<()> {
                     bar.set_position(done as u64)
                 })?;
             bar.finish_and_clear();
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::Exposure {
             trajectory,
@@ -364,7 +378,7 @@ fn run() -> anyhow::Result<()> {
             })?;
             bar.finish_and_clear();
             app::exposure::write(&report, &out)?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::Invert {
             images,
@@ -385,7 +399,7 @@ fn run() -> anyhow::Result<()> {
                 ));
             }
             let fit = app::invert::run(&pairs, start, samples)?;
-            println!("{}", serde_json::to_string(&fit)?);
+            out!("{}", serde_json::to_string(&fit)?);
         }
         Command::Irradiance {
             scene,
@@ -395,7 +409,7 @@ fn run() -> anyhow::Result<()> {
         } => {
             let cfg = config::load(&scene)?;
             let summary = app::irradiance::run(&cfg, &out, orders, steps)?;
-            println!("{}", serde_json::to_string(&summary)?);
+            out!("{}", serde_json::to_string(&summary)?);
         }
         Command::Stability { out, limit_s } => {
             let work =
@@ -407,7 +421,7 @@ fn run() -> anyhow::Result<()> {
             std::fs::write(&out, app::stability::markdown(&reports, &work))
                 .with_context(|| format!("writing {}", out.display()))?;
             let wrong = reports.iter().filter(|r| !r.as_expected()).count();
-            println!(
+            out!(
                 "{}",
                 serde_json::json!({"cases": reports.len(), "not_as_expected": wrong, "report": out})
             );
@@ -422,7 +436,7 @@ fn run() -> anyhow::Result<()> {
         }
         Command::Sweep { sweep, out, fit } => {
             let report = app::sweep::run(&sweep, &out, fit.as_deref(), |line| eprintln!("{line}"))?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::VerifyBudget {
             trajectory,
@@ -447,7 +461,7 @@ fn run() -> anyhow::Result<()> {
                 &out,
                 |line| eprintln!("{line}"),
             )?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::FitModel { csv, out } => {
             let m = app::sweep::fit_csv(&csv)?;
@@ -458,7 +472,7 @@ fn run() -> anyhow::Result<()> {
             );
             std::fs::write(&out, app::sweep::model_text(&m, &how))
                 .with_context(|| format!("{}", out.display()))?;
-            println!("{}", serde_json::to_string(&m)?);
+            out!("{}", serde_json::to_string(&m)?);
         }
         Command::Compare {
             scene,
@@ -474,7 +488,7 @@ fn run() -> anyhow::Result<()> {
                 max_shift,
                 out.as_deref(),
             )?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::Bench {
             trajectory,
@@ -510,7 +524,7 @@ fn run() -> anyhow::Result<()> {
                     let _ = writeln!(w, "{}", serde_json::to_string(row).unwrap_or_default());
                 }
             })?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::Serve(args) => serve(*args)?,
         Command::Replay {
@@ -531,7 +545,7 @@ fn run() -> anyhow::Result<()> {
             if let Some(p) = report {
                 std::fs::write(&p, &text).with_context(|| format!("{}", p.display()))?;
             }
-            println!("{}", serde_json::to_string(&r)?);
+            out!("{}", serde_json::to_string(&r)?);
         }
         Command::BenchEndpoints {
             trajectory,
@@ -561,7 +575,7 @@ fn run() -> anyhow::Result<()> {
                 other => anyhow::bail!("--present {other}: allowed are cpu, offscreen, auto"),
             };
             let report = app::bench_endpoints::run(&cfg, &label, &poses, presenter)?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::BenchDisplay {
             scene,
@@ -577,7 +591,7 @@ fn run() -> anyhow::Result<()> {
                 Some(screen_px),
                 frames,
             )?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?);
         }
         Command::Show {
             scene,
@@ -601,7 +615,7 @@ fn run() -> anyhow::Result<()> {
         Command::Calibrate { scene, steps, out } => {
             let cfg = config::load(&scene)?;
             let run = app::calibrate::run(&cfg, &scene.display().to_string(), steps, &out)?;
-            println!("{}", serde_json::to_string(&run)?);
+            out!("{}", serde_json::to_string(&run)?);
         }
     }
     Ok(())
@@ -738,8 +752,10 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         surrender,
         corto: corto_pose.zip(corto_image),
     })?;
-    // The addresses as bound (port 0 picks a free one), for people and scripts.
-    println!(
+    // The addresses as bound (port 0 picks a free one), for people and scripts (a closed
+    // stdout does not stop the daemon).
+    let _ = writeln!(
+        std::io::stdout(),
         "{}",
         serde_json::json!({
             "listening": daemon.tcp_addr.to_string(),
@@ -786,6 +802,20 @@ fn parse_size(s: &str) -> Option<[usize; 2]> {
     Some([w.trim().parse().ok()?, h.trim().parse().ok()?])
 }
 
+/// The error and its causes, each cause once: our typed errors often quote their source in
+/// their own message already (`file: cannot read: No such file or directory`).
+fn message(e: &anyhow::Error) -> String {
+    let mut msg = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !msg.contains(&c) {
+            msg += ": ";
+            msg += &c;
+        }
+    }
+    msg
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
@@ -797,7 +827,7 @@ fn main() -> ExitCode {
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("optistim: error: {e:#}");
+            eprintln!("optistim: error: {}", message(&e));
             ExitCode::FAILURE
         }
     }

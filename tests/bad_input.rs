@@ -314,3 +314,38 @@ fn the_binary_reports_bad_files_and_exits_nonzero() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_binary_names_a_missing_file_once_and_survives_a_closed_stdout() {
+    let bin = env!("CARGO_BIN_EXE_optistim");
+    let dir = std::env::temp_dir().join(format!("optistim-pipe-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The cause is quoted once, not once by our error and again by its source.
+    let out = std::process::Command::new(bin)
+        .args(["render", "/nonexistent/scene.toml"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert_eq!(
+        stderr.matches("No such file or directory").count(),
+        1,
+        "{stderr}"
+    );
+    // A reader that goes away before the result is printed (`optistim ... | head -c 0`).
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, SceneSpec::default().toml()).unwrap();
+    let mut child = std::process::Command::new(bin)
+        .args(["render", path.to_str().unwrap(), "--out"])
+        .arg(dir.join("out"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}

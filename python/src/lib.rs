@@ -458,6 +458,12 @@ impl Frame {
         })
     }
 
+    /// The frame's files in memory, from the arrays as they are now.
+    fn files(&self, py: Python<'_>) -> PyResult<Vec<(&'static str, Vec<u8>)>> {
+        self.with_images(py, |im| products::encode(&self.config, &self.meta, im))?
+            .map_err(render_err)
+    }
+
     /// Reads the arrays (as they are now) and hands them to `f`.
     fn with_images<T>(&self, py: Python<'_>, f: impl FnOnce(Images<'_>) -> T) -> PyResult<T> {
         let power: PyReadonlyArray2<f64> = self.power.bind(py).readonly();
@@ -557,9 +563,7 @@ impl Frame {
     /// The frame's files in memory: `{"power.fits": bytes, "signal.fits": ..., "depth.fits":
     /// ..., "image.png": ...}` (the bytes `optistim render` writes).
     fn encode<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let files = self
-            .with_images(py, |im| products::encode(&self.config, &self.meta, im))?
-            .map_err(render_err)?;
+        let files = self.files(py)?;
         let d = PyDict::new(py);
         for (name, bytes) in files {
             d.set_item(name, PyBytes::new(py, &bytes))?;
@@ -570,9 +574,7 @@ impl Frame {
     /// Writes `power.fits`, `signal.fits`, `depth.fits` and `image.png` into `dir` (created
     /// if missing), each whole or not at all.
     fn to_fits(&self, py: Python<'_>, dir: PathBuf) -> PyResult<()> {
-        let files = self
-            .with_images(py, |im| products::encode(&self.config, &self.meta, im))?
-            .map_err(render_err)?;
+        let files = self.files(py)?;
         py.detach(|| products::write_atomically(Path::new(&dir), &files))
             .map_err(render_err)
     }

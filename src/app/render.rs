@@ -108,14 +108,7 @@ pub fn run(
     let detector_ms = meta.detector_ms;
 
     let t0 = Instant::now();
-    let files = products::encode(config, &meta, images.view())?;
-    for (name, bytes) in &files {
-        let path = out.join(name);
-        std::fs::write(&path, bytes).map_err(|source| crate::io::IoError::File {
-            path: path.display().to_string(),
-            source,
-        })?;
-    }
+    products::write_atomically(out, &products::encode(config, &meta, images.view())?)?;
     let cards = products::cards(config, &meta);
     let with = |unit: &str, what: &str| products::with_unit(&cards, unit, what);
     let (w, h) = (meta.width, meta.height);

@@ -6,7 +6,8 @@
 //! sphere, in units of its radius, so that `f32` keeps ~6e-8 of that radius everywhere; a ray
 //! from afar (a camera at 10,000 km from a 500 m asteroid) is first clipped to the bounding
 //! sphere in `f64` and starts there. Chosen over the `bvh` crate for its traversal speed
-//! (about 8x in the crate authors' published benchmark; `docs/dependencies.md`).
+//! (about 8x in the crate authors' published benchmark; 1.6-2.4x on our meshes' camera rays,
+//! `docs/performance.md`).
 
 use glam::{DVec3, Vec3A};
 use obvhs::cwbvh::CwBvh;

@@ -347,6 +347,33 @@ fn line<DB: DrawingBackend>(
     Ok(())
 }
 
+/// A panel with exposure time [s] on a log axis over `x`, `y` linear, its mesh drawn.
+fn panel<'a, DB: DrawingBackend + 'a>(
+    area: &'a DrawingArea<DB, Shift>,
+    caption: &str,
+    x: (f64, f64),
+    y: std::ops::Range<f64>,
+    y_desc: &str,
+) -> Result<Chart<'a, DB>, String> {
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 16).into_font())
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d((x.0..x.1).log_scale(), y)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("exposure time [s]")
+        .y_desc(y_desc)
+        .x_label_formatter(&|x| format!("{x:.0e}"))
+        .label_style(("sans-serif", 12))
+        .draw()
+        .map_err(e)?;
+    Ok(chart)
+}
+
 /// The chart's legend box.
 fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>) -> Result<(), String> {
     chart
@@ -375,24 +402,8 @@ fn draw_on<DB: DrawingBackend>(
         (t0 - 0.5, t0 + 0.5)
     };
     let pct = (r.keep * 100.0).round();
-    let mut chart = ChartBuilder::on(&top)
-        .caption(
-            format!("Information loss along the trajectory; optimal bracket for X = {pct} %"),
-            ("sans-serif", 16).into_font(),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d((x0..x1).log_scale(), t0..t1)
-        .map_err(e)?;
-    chart
-        .configure_mesh()
-        .x_desc("exposure time [s]")
-        .y_desc("trajectory time [s]")
-        .x_label_formatter(&|x| format!("{x:.0e}"))
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(e)?;
+    let caption = format!("Information loss along the trajectory; optimal bracket for X = {pct} %");
+    let mut chart = panel(&top, &caption, (x0, x1), t0..t1, "trajectory time [s]")?;
     // The loss as a heat map: one cell per frame and grid exposure, each frame's row
     // reaching half-way to its neighbours' times.
     let times: Vec<f64> = r.frames.iter().map(|f| f.t_s).collect();
@@ -458,24 +469,14 @@ fn draw_on<DB: DrawingBackend>(
     )?;
     legend(&mut chart)?;
 
-    let mut pooled = ChartBuilder::on(&bottom)
-        .caption(
-            "Over the whole trajectory: active pixels lost against exposure",
-            ("sans-serif", 16).into_font(),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d((x0..x1).log_scale(), 0.0..1.0)
-        .map_err(e)?;
-    pooled
-        .configure_mesh()
-        .x_desc("exposure time [s]")
-        .y_desc("fraction of active pixels")
-        .x_label_formatter(&|x| format!("{x:.0e}"))
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(e)?;
+    let caption = "Over the whole trajectory: active pixels lost against exposure";
+    let mut pooled = panel(
+        &bottom,
+        caption,
+        (x0, x1),
+        0.0..1.0,
+        "fraction of active pixels",
+    )?;
     let curve = |f: fn(&Loss) -> f64| -> Vec<(f64, f64)> {
         g.iter()
             .zip(&r.pooled)

@@ -506,7 +506,7 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
         Ok(Ok(Ok((stats, bad_px, dn_over, reference)))) => {
             let cloud = stats.total_pl_points;
             let energy =
-                (whole && cloud > 0.0).then(|| ((stats.total_pl_image - cloud) / cloud).abs());
+                (whole && cloud > 0.0).then(|| ((stats.total_pl_gridded - cloud) / cloud).abs());
             let outcome = if bad_px > 0 || dn_over > 0 {
                 Outcome::Defect {
                     what: format!(

@@ -611,6 +611,10 @@ pub struct AlbedoMap {
     /// The coarser levels ([`maps::Map::halved`]): `levels[k]` has texels `2^(k+1)` times
     /// the map's.
     levels: std::sync::Arc<Vec<maps::Map>>,
+    /// The map's area-weighted mean times `scale_per_value`.
+    mean_scale: f64,
+    /// The map's least and greatest finite values times `scale_per_value`.
+    scale_range: (f64, f64),
 }
 
 impl AlbedoMap {
@@ -620,11 +624,26 @@ impl AlbedoMap {
         while let Some(next) = levels.last().unwrap_or(&map).halved() {
             levels.push(next);
         }
+        let (lo, hi) = map
+            .values
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v as f64), hi.max(v as f64))
+            });
+        let (a, b) = (lo * scale_per_value, hi * scale_per_value);
         AlbedoMap {
+            mean_scale: map.mean() * scale_per_value,
+            scale_range: (a.min(b), a.max(b)),
             map: std::sync::Arc::new(map),
             scale_per_value,
             levels: std::sync::Arc::new(levels),
         }
+    }
+
+    /// The BRDF scale of the map's area-weighted mean value.
+    pub fn mean_scale(&self) -> f64 {
+        self.mean_scale
     }
 
     /// The mean relative change between neighbouring texels (in longitude) at each level,
@@ -663,12 +682,21 @@ impl AlbedoMap {
     /// that a quadrangle spanning many texels reads their mean rather than one of them.
     #[inline]
     pub fn scale_over(&self, n_body: DVec3, footprint_rad: f64, fallback: f64) -> f64 {
+        let (lon, lat) = crate::geometry::lon_lat(n_body);
+        self.scale_over_lon_lat(lon, lat, footprint_rad, fallback)
+    }
+
+    /// [`AlbedoMap::scale_over`] at body longitude and latitude [rad].
+    #[inline]
+    pub fn scale_over_lon_lat(&self, lon: f64, lat: f64, footprint_rad: f64, fallback: f64) -> f64 {
         let ratio = footprint_rad / self.map.spacing_rad().1;
         // (NaN reads the map itself too.)
         if ratio.is_nan() || ratio <= 1.0 || self.levels.is_empty() {
-            return self.scale_at(n_body, fallback);
+            return self
+                .map
+                .sample(lon, lat)
+                .map_or(fallback, |v| v * self.scale_per_value);
         }
-        let (lon, lat) = crate::geometry::lon_lat(n_body);
         let lod = ratio.log2();
         let k = lod.floor() as usize;
         let t = lod - k as f64;
@@ -682,6 +710,11 @@ impl AlbedoMap {
             (Some(v), None) | (None, Some(v)) => v * self.scale_per_value,
             (None, None) => fallback,
         }
+    }
+
+    /// The smallest and largest BRDF scale the map holds.
+    pub fn scale_range(&self) -> (f64, f64) {
+        self.scale_range
     }
 }
 

@@ -1464,7 +1464,11 @@ impl Validator<'_> {
             s.map_filter = self.pick(
                 "render.map_filter",
                 v,
-                &[("point", MapFilter::Point), ("area", MapFilter::Area)],
+                &[
+                    ("point", MapFilter::Point),
+                    ("area", MapFilter::Area),
+                    ("pixel", MapFilter::Pixel),
+                ],
             )?;
         }
         Ok(s)

@@ -20,8 +20,8 @@
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
 //! prediction meets the budget. It models no more than the frame needs: shadows are cast
 //! only when the Sun is low enough over enough of the lit surface for the relief to hide it
-//! ([`Planner::shadowing`]), and the albedo map is read at the level of detail each
-//! quadrangle spans ([`crate::render::MapFilter::Area`]).
+//! ([`Planner::shadowing`]), and the albedo map is read over each pixel's footprint at the
+//! level of detail it spans ([`crate::render::MapFilter::Pixel`]).
 
 use crate::raycast::Tracer;
 use crate::render::settings::SelfShadowing;
@@ -444,7 +444,7 @@ impl Planner {
             } else {
                 4
             },
-            map_filter: MapFilter::Area,
+            map_filter: MapFilter::Pixel,
             ..base.clone()
         }
     }

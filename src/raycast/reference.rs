@@ -343,6 +343,7 @@ pub fn render(
             .to_degrees(),
         total_pl_points: total,
         total_pl_image: total,
+        total_pl_gridded: total,
         timings_ms: StageTimings {
             total: seconds * 1e3,
             ..Default::default()

@@ -232,6 +232,7 @@ pub fn render(
         covered_px: pl.iter().filter(|&&x| x > 0.0).count() as f64,
         total_pl_points: total,
         total_pl_image: total,
+        total_pl_gridded: total,
         timings_ms: StageTimings {
             // The tracer's set-up with the facets' projections (sun grid, raster bins) is the
             // projection stage; the casts are the integration.

@@ -462,7 +462,8 @@ pub fn integrate(
                         let n_body = view.body_dir(trig.mid_dir(i, k));
                         let scale = match map_filter {
                             MapFilter::Point => a.scale_at(n_body, brdf.scale()),
-                            MapFilter::Area => {
+                            // (Under `Pixel` the renderer passes no map here.)
+                            MapFilter::Area | MapFilter::Pixel => {
                                 let side = ((trig.lon[i + 1] - trig.lon[i]) * area_lat).sqrt();
                                 a.scale_over(n_body, side, brdf.scale())
                             }
@@ -472,8 +473,10 @@ pub fn integrate(
                     }
                     None => brdf,
                 };
-                let method = match (method, albedo) {
-                    (Method::Exact(_), Some(_)) => brdf.exact_form().map_or(method, Method::Exact),
+                // The closed form's constant is the BRDF's own (scaled by the map, or the
+                // reference scale of `MapFilter::Pixel`).
+                let method = match method {
+                    Method::Exact(_) => brdf.exact_form().map_or(method, Method::Exact),
                     _ => method,
                 };
                 let f = if class == BOUNDARY {

@@ -3,7 +3,9 @@
 //!
 //! ```text
 //! pose -> view (CSF) -> bounding -> sampling -> pruning -> integration -> projection
-//!      -> gridding (fixed point) -> reconstruction (super-sampling) -> (P/L) image [+ depth]
+//!      -> gridding (fixed point) -> reconstruction (super-sampling)
+//!      -> footprint (the albedo map over each pixel, `map_filter = "pixel"`) -> (P/L) image
+//!      [+ depth]
 //! ```
 //!
 //! The result is the geometric power-to-radiance image `(P/L)_{u,v}` [sr m^2] (Eq. 9); the
@@ -12,6 +14,7 @@
 
 pub mod bounding;
 pub mod depth;
+pub mod footprint;
 pub mod gridding;
 pub mod integration;
 pub mod projection;
@@ -68,6 +71,8 @@ pub struct StageTimings {
     pub projection: f64,
     pub gridding: f64,
     pub reconstruction: f64,
+    /// The albedo map over each pixel's footprint (`map_filter = "pixel"`).
+    pub footprint: f64,
     pub depth: f64,
     pub total: f64,
 }
@@ -86,8 +91,12 @@ pub struct FrameStats {
     pub covered_px: f64,
     /// Sum of (P/L) over the point cloud [sr m^2].
     pub total_pl_points: f64,
-    /// Sum of (P/L) over the image [sr m^2] (less than the cloud only by what fell outside).
+    /// Sum of (P/L) over the image [sr m^2] (less than the cloud only by what fell outside,
+    /// unless `map_filter = "pixel"` then scales the pixels: see `total_pl_gridded`).
     pub total_pl_image: f64,
+    /// Sum of (P/L) over the image before the footprint step [sr m^2]: the cloud's energy as
+    /// gridded (equal to `total_pl_image` unless `map_filter = "pixel"`).
+    pub total_pl_gridded: f64,
     pub timings_ms: StageTimings,
 }
 
@@ -361,6 +370,23 @@ fn render_in_pool(
         ..Default::default()
     };
     let mut t = StageTimings::default();
+    // Under `MapFilter::Pixel` the quadrangles see the map's mean and the footprint step
+    // brings the map in per pixel.
+    let pixel_map = match (&scene.body.albedo_map, settings.map_filter) {
+        (Some(a), MapFilter::Pixel) => Some(a),
+        _ => None,
+    };
+    let brdf = match pixel_map {
+        Some(a) => {
+            let s_ref = footprint::reference_scale(a, scene.body.brdf.scale());
+            scene.body.brdf.with_scale(s_ref)
+        }
+        None => scene.body.brdf,
+    };
+    let quad_albedo = match pixel_map {
+        Some(_) => None,
+        None => scene.body.albedo_map.as_ref(),
+    };
 
     let t0 = Instant::now();
     // A sphere, and an ellipsoid in its parameter space, are bounded to the visible cap in the
@@ -406,8 +432,8 @@ fn render_in_pool(
             &view,
             &trig,
             &buf.keep,
-            &scene.body.brdf,
-            scene.body.albedo_map.as_ref(),
+            &brdf,
+            quad_albedo,
             settings.map_filter,
             method,
             settings.boundary_nodes as usize,
@@ -460,12 +486,27 @@ fn render_in_pool(
         };
         t.reconstruction = ms(t0);
     }
-    stats.total_pl_image = pl_image.iter().sum();
-    if !stats.total_pl_image.is_finite() {
+    stats.total_pl_gridded = pl_image.iter().sum();
+    if !stats.total_pl_gridded.is_finite() {
         return Err(RenderError::NonFinite {
             stage: "gridding",
-            value: stats.total_pl_image,
+            value: stats.total_pl_gridded,
         });
+    }
+    stats.total_pl_image = stats.total_pl_gridded;
+    if let Some(a) = pixel_map {
+        let t0 = Instant::now();
+        let relief = scene.body.relief.as_ref();
+        let shape = &scene.body.shape;
+        footprint::apply(intr, shape, relief, &brdf, a, pose, &mut pl_image);
+        stats.total_pl_image = pl_image.iter().sum();
+        t.footprint = ms(t0);
+        if !stats.total_pl_image.is_finite() {
+            return Err(RenderError::NonFinite {
+                stage: "footprint",
+                value: stats.total_pl_image,
+            });
+        }
     }
 
     let depth_m = settings.depth.then(|| {

@@ -87,6 +87,10 @@ pub enum MapFilter {
     /// ([`crate::body::AlbedoMap::scale_over`]); the point value while a quadrangle is no
     /// wider than a texel.
     Area,
+    /// The quadrangles integrate the geometry with the map's mean; each pixel then reads the
+    /// map over its own footprint on the surface ([`super::footprint`]): the map within the
+    /// pixel however many quadrangles the pixel receives.
+    Pixel,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]

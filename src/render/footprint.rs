@@ -1,0 +1,440 @@
+//! The albedo map read over each pixel's footprint (`render.map_filter = "pixel"`), the step
+//! after reconstruction.
+//!
+//! Paper Sec. 4.4 gives each quadrangle one albedo, the map's at its centre: a quadrangle that
+//! spans several pixels paints them all with it, so wherever the map varies within a few
+//! pixels (a textured Moon whose texels are a pixel or two across) the image carries the
+//! quadrangles' pattern, not the map's. Under `MapFilter::Pixel` the quadrangles are
+//! integrated with one reference scale `s_ref` (the map's mean), which gives the geometry,
+//! shadows and limb of `(P/L)` as before; then each pixel is scaled by
+//!
+//! ```text
+//! (P/L)_p <- (P/L)_p f_r(a_p) / f_r(s_ref)
+//! ```
+//!
+//! where `a_p` is the map averaged over the pixel's footprint on the surface (the area-averaged
+//! map read at midpoints of the pixel no more than half a texel apart, the area-averaged levels
+//! of [`AlbedoMap::scale_over`] beyond 4 texels a pixel) around the point its centre's line of
+//! sight meets, and the
+//! ratio of BRDFs is taken at that point's own incidence, emission and phase. For the models
+//! linear in their scale (every one but Hapke) the ratio is `a_p / s_ref` whatever the
+//! geometry; Hapke's is evaluated. The pixel's power is thereby the integral of the geometry
+//! times the map's mean over the pixel (Eq. 9 with the albedo inside the pixel integral),
+//! which is exact to first order in the map's variation over the pixel and independent of
+//! how many quadrangles the pixel receives.
+//!
+//! A pixel whose centre misses the body (part of a limb pixel) reads the map at the point of
+//! the surface closest to its line of sight. The footprint is the pixel's solid angle at the
+//! range of the surface, stretched by `1/sqrt(mu)` for the emission angle (the side of a
+//! square of the same area), and the map level follows it, so a far Moon's pixel reads the
+//! mean over the texels it covers.
+//!
+//! Cost. Casting every pixel's line of sight took 75 ms a megapixel on 2 cores, more than the
+//! render. The image is therefore cut in blocks of 8 x 8 pixels: lines of sight are cast at
+//! the blocks' corners and centre only, and a block whose corners all meet the body and whose
+//! centre's longitude and latitude the corners' bilinear interpolation predicts within
+//! [`TOLERANCE_TEXELS`] of a texel has every pixel's longitude, latitude and footprint
+//! interpolated (the limb, the poles and the map's seam fail the test and are cast pixel by
+//! pixel). Hapke's ratio, whose dependence on the geometry is weak (the ratio of two BRDFs at
+//! the same angles), is tabulated per block at the centre's angles over the map's range of
+//! `w` and interpolated; exact per pixel elsewhere.
+
+use crate::body::{AlbedoMap, Relief, Shape};
+use crate::brdf::{Brdf, Local};
+use crate::camera::Intrinsics;
+use crate::scene::Pose;
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// The steepest emission cosine the footprint's stretch follows (beyond it, within a few
+/// degrees of the limb, it stays at `1/sqrt(0.05)` = 4.5 times the pixel).
+const MIN_MU: f64 = 0.05;
+
+/// Side of the interpolation blocks [px].
+const BLOCK: usize = 8;
+
+/// How far the block centre's interpolated longitude and latitude may be from the cast ones
+/// [texels of the map, or of the pixel's footprint where that is larger], each.
+pub const TOLERANCE_TEXELS: f64 = 0.01;
+
+/// The largest spacing of the map reads over a pixel [texels]: a pixel that spans `len`
+/// texels along an axis is read at `ceil(len / 0.5)` midpoints along it, so that the bilinear
+/// map's kinks at texel centres are integrated to a small fraction of a texel's change.
+const READ_SPACING_TEXELS: f64 = 0.5;
+
+/// At most this many reads per pixel side; beyond (a pixel over more than 4 texels) each
+/// read takes the area-averaged level of its share of the footprint.
+const MAX_READS: usize = 8;
+
+/// Nodes of the per-block table of Hapke's ratio over the map's range of `w`.
+const TABLE: usize = 9;
+
+/// The BRDF scale the geometry is integrated with under `MapFilter::Pixel`: the map's mean
+/// (so that Hapke's ratio stays near its value), or `fallback` where that is not positive.
+pub fn reference_scale(albedo: &AlbedoMap, fallback: f64) -> f64 {
+    let s = albedo.mean_scale();
+    if s.is_finite() && s > 0.0 {
+        s
+    } else {
+        fallback
+    }
+}
+
+/// What one line of sight meets: the map coordinates [rad], the footprint [rad of arc] and
+/// the local geometry (Hapke's ratio needs it).
+#[derive(Clone, Copy)]
+struct Probe {
+    lon: f64,
+    lat: f64,
+    footprint_rad: f64,
+    /// Whether the line of sight meets the body (else: the nearest point over the limb).
+    hit: bool,
+    local: Local,
+}
+
+/// One frame's inputs to the step.
+struct Step<'a> {
+    intrinsics: &'a Intrinsics,
+    shape: &'a Shape,
+    relief: Option<&'a Relief>,
+    brdf_ref: &'a Brdf,
+    albedo: &'a AlbedoMap,
+    pose: &'a Pose,
+    s_ref: f64,
+    linear: bool,
+    ifov: f64,
+}
+
+impl Step<'_> {
+    /// The line of sight through image point `(u, v)` [px].
+    fn probe(&self, u: f64, v: f64) -> Probe {
+        let cam = self.pose.camera_position_m;
+        let (x, y) = self.intrinsics.unproject(u, v);
+        let dir = (self.pose.body_from_camera * DVec3::new(x, y, 1.0)).normalize();
+        let hit = match self.relief.filter(|r| r.displaces()) {
+            Some(r) => r.intersect_displaced(cam, dir).map(|t| {
+                let p = cam + dir * t;
+                (t, p, p.normalize())
+            }),
+            None => self
+                .shape
+                .intersect_normal(cam, dir)
+                .map(|(t, n)| (t, cam + dir * t, n)),
+        };
+        let (t, p, n_shape, mu, is_hit) = match hit {
+            Some((t, p, n)) => (t, p, n, n.dot(-dir), true),
+            None => {
+                // The point of the line of sight nearest the centre: over the limb.
+                let t = (-cam.dot(dir)).max(0.0);
+                let (p, n) = self.shape.surface((cam + dir * t).normalize_or_zero());
+                (t, p, n, 0.0, false)
+            }
+        };
+        let up = p.normalize_or_zero();
+        let (lon, lat) = crate::geometry::lon_lat_unit(up);
+        let normal = match self.relief.filter(|_| !self.linear) {
+            Some(r) => r.at(up, false).normal,
+            None => n_shape,
+        };
+        Probe {
+            lon,
+            lat,
+            footprint_rad: self.ifov * t / mu.max(MIN_MU).sqrt() / p.length().max(1e-300),
+            hit: is_hit,
+            local: Local::new(normal, (self.pose.sun_position_m - p).normalize(), -dir),
+        }
+    }
+
+    /// `f_r(a) / f_r(s_ref)` at `local`'s angles (`a / s_ref` for the linear models, and where
+    /// the point is unlit or unseen).
+    fn ratio(&self, a: f64, local: &Local) -> f64 {
+        if !self.linear && local.mu0 > 0.0 && local.mu > 0.0 {
+            let f_ref = self.brdf_ref.eval(local);
+            if f_ref > 0.0 {
+                return self.brdf_ref.with_scale(a).eval(local) / f_ref;
+            }
+        }
+        a / self.s_ref
+    }
+
+    /// The pixel's factor from its own line of sight.
+    fn exact(&self, i: usize, j: usize) -> f64 {
+        let p = self.probe(i as f64 + 0.5, j as f64 + 0.5);
+        let a = self
+            .albedo
+            .scale_over_lon_lat(p.lon, p.lat, p.footprint_rad, self.s_ref);
+        self.ratio(a, &p.local)
+    }
+}
+
+/// `b - a` brought into (-pi, pi].
+fn wrapped(d: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    if d > PI {
+        d - TAU
+    } else if d <= -PI {
+        d + TAU
+    } else {
+        d
+    }
+}
+
+/// One band of [`BLOCK`] image rows being scaled: its pixels, and what every block of it
+/// reads.
+struct Band<'a> {
+    pixels: &'a mut [f64],
+    width: usize,
+    rows: usize,
+    /// The band's first image row.
+    y0: usize,
+    /// Map texel size in longitude and latitude [rad].
+    dlon: f64,
+    dlat: f64,
+    /// The map's range of BRDF scales (Hapke's table spans it).
+    a_lo: f64,
+    a_hi: f64,
+    offsets: Vec<(f64, f64)>,
+}
+
+impl Step<'_> {
+    /// Scales the pixels of the block of `size` px whose top-left pixel is `(x0, y0)` (band
+    /// rows), from the lines of sight through its corners' pixel centres (`c`: top-left,
+    /// top-right, bottom-left, bottom-right) and its centre: interpolated if they agree, else
+    /// split in four, else (2 px) pixel by pixel.
+    fn block(
+        &self,
+        band: &mut Band,
+        x0: usize,
+        y0: usize,
+        size: usize,
+        c: [Probe; 4],
+        centre: Probe,
+    ) {
+        let (w, rows) = (band.width, band.rows);
+        let (x1, y1) = ((x0 + size).min(w), (y0 + size).min(rows));
+        if x0 >= x1 || y0 >= y1 {
+            return;
+        }
+        let lit = (y0..y1).any(|r| {
+            band.pixels[r * w + x0..r * w + x1]
+                .iter()
+                .any(|&v| v != 0.0)
+        });
+        if !lit {
+            return;
+        }
+        // Longitudes unwrapped about the first corner's.
+        let lon = [
+            c[0].lon,
+            c[0].lon + wrapped(c[1].lon - c[0].lon),
+            c[0].lon + wrapped(c[2].lon - c[0].lon),
+            c[0].lon + wrapped(c[3].lon - c[0].lon),
+        ];
+        let lat = [c[0].lat, c[1].lat, c[2].lat, c[3].lat];
+        // The tolerance grows with the pixel's footprint beyond a texel: a shift of the
+        // footprint changes its mean by the shift's share of the footprint.
+        let tolerance = TOLERANCE_TEXELS * (centre.footprint_rad / band.dlat).max(1.0);
+        let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
+            .abs()
+            .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());
+        let hits = c.iter().chain([&centre]).all(|c| c.hit);
+        let smooth = hits && miss < tolerance;
+        let fy = (band.y0 + y0) as f64 + 0.5;
+        let fx = x0 as f64 + 0.5;
+        if !smooth && size > 2 {
+            // The 3 x 3 lines of sight of the four quarters, then their centres.
+            let h = size / 2;
+            let (hf, qf) = (h as f64, 0.5 * h as f64);
+            let top = self.probe(fx + hf, fy);
+            let left = self.probe(fx, fy + hf);
+            let right = self.probe(fx + 2.0 * hf, fy + hf);
+            let bottom = self.probe(fx + hf, fy + 2.0 * hf);
+            let quarters = [
+                (0, 0, [c[0], top, left, centre]),
+                (h, 0, [top, c[1], centre, right]),
+                (0, h, [left, centre, c[2], bottom]),
+                (h, h, [centre, right, bottom, c[3]]),
+            ];
+            for (dx, dy, q) in quarters {
+                let mid = self.probe(fx + dx as f64 + qf, fy + dy as f64 + qf);
+                self.block(band, x0 + dx, y0 + dy, h, q, mid);
+            }
+            return;
+        }
+        // A block of 2 px is interpolated still (its reads integrate each pixel, where one
+        // read would stand for the whole footprint), over the limb too (the corners that miss
+        // read the surface nearest them), unless the interpolation is off by a fiftieth of
+        // the footprint (a pole, or a corner far over the limb): then pixel by pixel. So is
+        // Hapke's there, whose ratio at grazing angles follows each pixel's own angles (one
+        // table per 2 px block doubled the total error of `tests/maps.rs`'s Hapke sphere).
+        if !smooth && (!self.linear || miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0)) {
+            for r in y0..y1 {
+                for i in x0..x1 {
+                    let px = &mut band.pixels[r * w + i];
+                    if *px != 0.0 {
+                        *px *= self.exact(i, band.y0 + r);
+                    }
+                }
+            }
+            return;
+        }
+        let n = size as f64;
+        // Texels per pixel along the image's two axes, the larger of the block's two edges.
+        let texels = |dl: f64, da: f64| (dl / band.dlon).hypot(da / band.dlat) / n;
+        let len_s =
+            texels(lon[1] - lon[0], lat[1] - lat[0]).max(texels(lon[3] - lon[2], lat[3] - lat[2]));
+        let len_t =
+            texels(lon[2] - lon[0], lat[2] - lat[0]).max(texels(lon[3] - lon[1], lat[3] - lat[1]));
+        let reads = |len: f64| ((len / READ_SPACING_TEXELS).ceil() as usize).clamp(1, MAX_READS);
+        let (ns, nt) = (reads(len_s), reads(len_t));
+        band.offsets.clear();
+        for b in 0..nt {
+            for a in 0..ns {
+                let o = |k: usize, m: usize| ((k as f64 + 0.5) / m as f64 - 0.5) / n;
+                band.offsets.push((o(a, ns), o(b, nt)));
+            }
+        }
+        // Each read is weighted by the light it stands for, `mu0 mu` interpolated from the
+        // corners (clamped at 0): across the terminator and the limb a pixel's power comes
+        // from its lit, visible part, whose albedo is what it shows.
+        let mu0 = [
+            c[0].local.mu0,
+            c[1].local.mu0,
+            c[2].local.mu0,
+            c[3].local.mu0,
+        ];
+        let mu = [c[0].local.mu, c[1].local.mu, c[2].local.mu, c[3].local.mu];
+        // What each read stands for [rad of latitude]: at most half a texel (the map itself)
+        // but where `MAX_READS` caps the reads (then an area-averaged level).
+        let read_rad = (len_s / ns as f64).max(len_t / nt as f64) * band.dlat;
+        let (a_lo, a_hi) = (band.a_lo, band.a_hi);
+        let tabulated = !self.linear && a_hi > a_lo;
+        let mut table = [0.0; TABLE];
+        if tabulated {
+            // At the angles of the block's most lit and visible line of sight (the centre's
+            // may be over the limb or the terminator).
+            let light = |p: &&Probe| p.local.mu0.max(0.0) * p.local.mu.max(0.0);
+            let best = c
+                .iter()
+                .chain([&centre])
+                .max_by(|a, b| light(a).total_cmp(&light(b)))
+                .unwrap_or(&centre);
+            for (k, t) in table.iter_mut().enumerate() {
+                let a = a_lo + (a_hi - a_lo) * k as f64 / (TABLE - 1) as f64;
+                *t = self.ratio(a, &best.local);
+            }
+        }
+        for r in y0..y1 {
+            let t = (r - y0) as f64 / n;
+            for i in x0..x1 {
+                let px = &mut band.pixels[r * w + i];
+                if *px == 0.0 {
+                    continue;
+                }
+                let s = (i - x0) as f64 / n;
+                // The pixel's weighted mean of the BRDF's ratio over the map: the bilinear map at
+                // `ns x nt` midpoints of the pixel (at the footprint's level beyond
+                // `MAX_READS`), each read's ratio (Hapke's is not linear in `w`: the mean of
+                // the ratios, not the ratio of the mean `w`).
+                let (mut sum, mut weights) = (0.0, 0.0);
+                for (a, b) in &band.offsets {
+                    let (s, t) = (s + a, t + b);
+                    let weight = lerp(mu0, s, t).max(0.0) * lerp(mu, s, t).max(0.0) + 1e-12;
+                    let a = self.albedo.scale_over_lon_lat(
+                        lerp(lon, s, t),
+                        lerp(lat, s, t),
+                        read_rad,
+                        self.s_ref,
+                    );
+                    sum += weight
+                        * if tabulated {
+                            let x = ((a - a_lo) / (a_hi - a_lo) * (TABLE - 1) as f64)
+                                .clamp(0.0, (TABLE - 1) as f64);
+                            let k = (x as usize).min(TABLE - 2);
+                            let f = x - k as f64;
+                            (1.0 - f) * table[k] + f * table[k + 1]
+                        } else {
+                            a / self.s_ref
+                        };
+                    weights += weight;
+                }
+                *px *= sum / weights;
+            }
+        }
+    }
+}
+
+/// Bilinear interpolation of the corners' `q` (top-left, top-right, bottom-left,
+/// bottom-right) at `(s, t)` in [0, 1]^2.
+#[inline(always)]
+fn lerp(q: [f64; 4], s: f64, t: f64) -> f64 {
+    (1.0 - t) * ((1.0 - s) * q[0] + s * q[1]) + t * ((1.0 - s) * q[2] + s * q[3])
+}
+
+/// Scales each non-zero pixel of `image` (row-major, the camera's size) by the albedo over its
+/// footprint relative to `brdf_ref`'s scale (see the module's doc).
+pub fn apply(
+    intrinsics: &Intrinsics,
+    shape: &Shape,
+    relief: Option<&Relief>,
+    brdf_ref: &Brdf,
+    albedo: &AlbedoMap,
+    pose: &Pose,
+    image: &mut [f64],
+) {
+    let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
+    let s_ref = brdf_ref.scale();
+    if w == 0 || h == 0 || s_ref <= 0.0 {
+        return;
+    }
+    let (fx, fy) = intrinsics.focal_px();
+    let step = Step {
+        intrinsics,
+        shape,
+        relief,
+        brdf_ref,
+        albedo,
+        pose,
+        s_ref,
+        linear: !matches!(brdf_ref, Brdf::Hapke(_)),
+        // The pixel's side as an angle [rad] (at the optical axis: distortion changes the
+        // footprint by a few percent at most, which only picks the map level).
+        ifov: (1.0 / (fx * fy)).sqrt(),
+    };
+    let (dlon, dlat) = albedo.map.spacing_rad();
+    let (a_lo, a_hi) = albedo.scale_range();
+    let bw = w.div_ceil(BLOCK);
+    image
+        .par_chunks_mut(w * BLOCK)
+        .enumerate()
+        .for_each(|(by, pixels)| {
+            let y0 = by * BLOCK;
+            let fy = y0 as f64 + 0.5;
+            // The corners' lines of sight, above and below the band.
+            let corners: Vec<[Probe; 2]> = (0..=bw)
+                .map(|bx| {
+                    let x = (bx * BLOCK) as f64 + 0.5;
+                    [step.probe(x, fy), step.probe(x, fy + BLOCK as f64)]
+                })
+                .collect();
+            let mut band = Band {
+                rows: pixels.len() / w,
+                pixels,
+                width: w,
+                y0,
+                dlon,
+                dlat,
+                a_lo,
+                a_hi,
+                offsets: Vec::with_capacity(MAX_READS * MAX_READS),
+            };
+            let half = 0.5 * BLOCK as f64;
+            for bx in 0..bw {
+                let x0 = bx * BLOCK;
+                let [c00, c01] = corners[bx];
+                let [c10, c11] = corners[bx + 1];
+                let centre = step.probe(x0 as f64 + half + 0.5, fy + half);
+                step.block(&mut band, x0, 0, BLOCK, [c00, c10, c01, c11], centre);
+            }
+        });
+}

@@ -8,11 +8,14 @@
 //!
 //! ```text
 //! ln e(p) = ln margin + k0 + k1 ln p + k2 ln(T + 1e-4) + k3 ln(E + 1e-3)
+//!           + k4 ln p ln(T + 1e-4)
 //! ```
 //!
 //! with `p` the quadrangles per pixel, `T` the texture (the relative change of albedo and of
 //! the DEM's shading between neighbouring pixels), `E` the share of lit pixels on the limb or
-//! the terminator (so `-k1` is the figure's convergence order), fitted by least squares in
+//! the terminator (so `-(k1 + k4 ln(T + 1e-4))` is the figure's convergence order: the map read
+//! over each pixel's footprint leaves a textured frame an error that more quadrangles do not
+//! reduce, while a plain body's falls as `1/p`), fitted by least squares in
 //! logarithms, and `margin` the largest ratio of measured to modelled error over the sweep's
 //! frames, so that the model is an upper bound on every frame it was fitted on.
 //!
@@ -83,10 +86,14 @@ impl Features {
     }
 }
 
-/// One figure's model: `ln e = ln margin + k . (1, ln p, ln(T + 1e-4), ln(E + 1e-3))`.
+/// The model's regressors (see the module's doc).
+const N: usize = 5;
+
+/// One figure's model:
+/// `ln e = ln margin + k . (1, ln p, ln(T + 1e-4), ln(E + 1e-3), ln p ln(T + 1e-4))`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FigureModel {
-    pub k: [f64; 4],
+    pub k: [f64; N],
     pub margin: f64,
 }
 
@@ -96,13 +103,9 @@ impl FigureModel {
     }
 }
 
-fn regressors(points_per_px: f64, f: &Features) -> [f64; 4] {
-    [
-        1.0,
-        points_per_px.ln(),
-        (f.texture + 1e-4).ln(),
-        (f.edge_share() + 1e-3).ln(),
-    ]
+fn regressors(points_per_px: f64, f: &Features) -> [f64; N] {
+    let (p, t) = (points_per_px.ln(), (f.texture + 1e-4).ln());
+    [1.0, p, t, (f.edge_share() + 1e-3).ln(), p * t]
 }
 
 /// The three figures' models, fitted by the sweep.
@@ -193,23 +196,23 @@ impl ErrorModel {
     /// `ln e` on the regressors, then the margin that bounds every row.
     pub fn fit(rows: &[FitRow]) -> Result<ErrorModel, ModelError> {
         let fig = |get: fn(&FitRow) -> f64, name: &str| -> Result<FigureModel, ModelError> {
-            let pts: Vec<([f64; 4], f64)> = rows
+            let pts: Vec<([f64; N], f64)> = rows
                 .iter()
                 .filter(|r| get(r).is_finite() && get(r) > 0.0 && r.points_per_px > 0.0)
                 .map(|r| (regressors(r.points_per_px, &r.features), get(r).ln()))
                 .collect();
-            if pts.len() < 4 {
+            if pts.len() < N {
                 return Err(ModelError::Fit(format!(
-                    "{name}: {} usable frames, at least 4 needed",
+                    "{name}: {} usable frames, at least {N} needed",
                     pts.len()
                 )));
             }
-            let mut ata = [[0.0f64; 4]; 4];
-            let mut atb = [0.0f64; 4];
+            let mut ata = [[0.0f64; N]; N];
+            let mut atb = [0.0f64; N];
             for (x, y) in &pts {
-                for i in 0..4 {
+                for i in 0..N {
                     atb[i] += x[i] * y;
-                    for j in 0..4 {
+                    for j in 0..N {
                         ata[i][j] += x[i] * x[j];
                     }
                 }
@@ -243,28 +246,28 @@ impl ErrorModel {
     }
 }
 
-fn dot(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+fn dot(a: &[f64; N], b: &[f64; N]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// The least-squares solution of the normal equations `a x = b` (Gauss-Jordan with partial
 /// pivoting; a pivot below 1e-9 of the largest diagonal drops its regressor: 0).
-fn solve(a: &[[f64; 4]; 4], b: &[f64; 4]) -> Option<[f64; 4]> {
+fn solve(a: &[[f64; N]; N], b: &[f64; N]) -> Option<[f64; N]> {
     let (mut m, mut v) = (*a, *b);
-    let scale = (0..4).map(|i| m[i][i].abs()).fold(0.0f64, f64::max);
+    let scale = (0..N).map(|i| m[i][i].abs()).fold(0.0f64, f64::max);
     if scale.is_nan() || scale <= 0.0 {
         return None;
     }
-    let mut dropped = [false; 4];
-    for col in 0..4 {
-        let piv = (col..4).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
+    let mut dropped = [false; N];
+    for col in 0..N {
+        let piv = (col..N).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
         if m[piv][col].abs() < 1e-9 * scale {
             dropped[col] = true;
             continue;
         }
         m.swap(col, piv);
         v.swap(col, piv);
-        for row in 0..4 {
+        for row in 0..N {
             if row != col {
                 let f = m[row][col] / m[col][col];
                 let pivot_row = m[col];
@@ -275,8 +278,8 @@ fn solve(a: &[[f64; 4]; 4], b: &[f64; 4]) -> Option<[f64; 4]> {
             }
         }
     }
-    let mut x = [0.0; 4];
-    for i in 0..4 {
+    let mut x = [0.0; N];
+    for i in 0..N {
         if !dropped[i] {
             x[i] = v[i] / m[i][i];
         }
@@ -539,7 +542,7 @@ mod tests {
     /// prediction still bounds every row.
     #[test]
     fn the_fit_recovers_the_law_that_made_the_frames() {
-        let law = [0.05f64.ln(), -1.0, 0.9, 0.2];
+        let law = [0.05f64.ln(), -1.0, 0.9, 0.2, 0.1];
         let mut rows = Vec::new();
         for &t in &[0.0, 0.01, 0.1] {
             for &edge in &[5.0, 50.0, 200.0] {

@@ -166,7 +166,7 @@ pub fn model_text(m: &ErrorModel, how: &str) -> String {
     format!(
         "# The fidelity planner's error model (src/fidelity/budget.rs), fitted by\n\
          #   {how}\n\
-         # on {} ladder frames: ln e = ln margin + k . (1, ln p, ln(texture + 1e-4), ln(edge_share + 1e-3)).\n\n{}",
+         # on {} ladder frames: ln e = ln margin + k . (1, ln p, ln(texture + 1e-4), ln(edge_share + 1e-3), ln p ln(texture + 1e-4)).\n\n{}",
         m.frames,
         m.to_toml()
     )

@@ -241,7 +241,7 @@ impl Step<'_> {
         let smooth = hits && miss < tolerance;
         let fy = (band.y0 + y0) as f64 + 0.5;
         let fx = x0 as f64 + 0.5;
-        if !smooth && size > 2 {
+        if !smooth && size > 1 {
             // The 3 x 3 lines of sight of the four quarters, then their centres.
             let h = size / 2;
             let (hf, qf) = (h as f64, 0.5 * h as f64);
@@ -261,13 +261,12 @@ impl Step<'_> {
             }
             return;
         }
-        // A block of 2 px is interpolated still (its reads integrate each pixel, where one
-        // read would stand for the whole footprint), over the limb too (the corners that miss
-        // read the surface nearest them), unless the interpolation is off by a fiftieth of
-        // the footprint (a pole, or a corner far over the limb): then pixel by pixel. So is
-        // Hapke's there, whose ratio at grazing angles follows each pixel's own angles (one
-        // table per 2 px block doubled the total error of `tests/maps.rs`'s Hapke sphere).
-        if !smooth && (!self.linear || miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0)) {
+        // A pixel (a block of 1) is interpolated still, from the lines of sight through its
+        // centre and its neighbours' (its reads integrate it, where one read would stand for
+        // the whole footprint), over the limb too (the corners that miss read the surface
+        // nearest them), unless the interpolation is off by a fiftieth of the footprint (a
+        // pole, or a corner far over the limb): then one read at its centre.
+        if !smooth && miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0) {
             for r in y0..y1 {
                 for i in x0..x1 {
                     let px = &mut band.pixels[r * w + i];
@@ -280,7 +279,11 @@ impl Step<'_> {
         }
         let n = size as f64;
         // Texels per pixel along the image's two axes, the larger of the block's two edges.
-        let texels = |dl: f64, da: f64| (dl / band.dlon).hypot(da / band.dlat) / n;
+        // Measured on the surface, in texels of latitude: towards a pole a column of the map
+        // narrows as `cos(lat)`, and the map is read as finely as the surface needs, not as
+        // its columns crowd (which at -79 deg read a pixel from levels 5 times too coarse).
+        let cos_lat = centre.lat.cos();
+        let texels = |dl: f64, da: f64| (dl * cos_lat).hypot(da) / band.dlat / n;
         let len_s =
             texels(lon[1] - lon[0], lat[1] - lat[0]).max(texels(lon[3] - lon[2], lat[3] - lat[2]));
         let len_t =
@@ -308,7 +311,10 @@ impl Step<'_> {
         // but where `MAX_READS` caps the reads (then an area-averaged level).
         let read_rad = (len_s / ns as f64).max(len_t / nt as f64) * band.dlat;
         let (a_lo, a_hi) = (band.a_lo, band.a_hi);
-        let tabulated = !self.linear && a_hi > a_lo;
+        // Hapke's ratio: tabulated per block, or for a lone pixel (the limb, the terminator)
+        // at its own angles.
+        let own = !self.linear && size == 1;
+        let tabulated = !self.linear && !own && a_hi > a_lo;
         let mut table = [0.0; TABLE];
         if tabulated {
             // At the angles of the block's most lit and visible line of sight (the centre's
@@ -353,12 +359,18 @@ impl Step<'_> {
                             let k = (x as usize).min(TABLE - 2);
                             let f = x - k as f64;
                             (1.0 - f) * table[k] + f * table[k + 1]
+                        } else if own {
+                            a
                         } else {
                             a / self.s_ref
                         };
                     weights += weight;
                 }
-                *px *= sum / weights;
+                *px *= if own {
+                    self.ratio(sum / weights, &c[0].local)
+                } else {
+                    sum / weights
+                };
             }
         }
     }

@@ -203,17 +203,10 @@ struct Band<'a> {
 impl Step<'_> {
     /// Scales the pixels of the block of `size` px whose top-left pixel is `(x0, y0)` (band
     /// rows), from the lines of sight through its corners' pixel centres (`c`: top-left,
-    /// top-right, bottom-left, bottom-right) and its centre: interpolated if they agree, else
-    /// split in four, else (2 px) pixel by pixel.
-    fn block(
-        &self,
-        band: &mut Band,
-        x0: usize,
-        y0: usize,
-        size: usize,
-        c: [Probe; 4],
-        centre: Probe,
-    ) {
+    /// top-right, bottom-left, bottom-right) and its centre (cast here, once the block is
+    /// known to hold lit pixels): interpolated if they agree, else split in four, down to
+    /// single pixels.
+    fn block(&self, band: &mut Band, x0: usize, y0: usize, size: usize, c: [Probe; 4]) {
         let (w, rows) = (band.width, band.rows);
         let (x1, y1) = ((x0 + size).min(w), (y0 + size).min(rows));
         if x0 >= x1 || y0 >= y1 {
@@ -227,6 +220,10 @@ impl Step<'_> {
         if !lit {
             return;
         }
+        let fy = (band.y0 + y0) as f64 + 0.5;
+        let fx = x0 as f64 + 0.5;
+        let half = 0.5 * size as f64;
+        let centre = self.probe(fx + half, fy + half);
         // Longitudes unwrapped about the first corner's.
         let lon = [
             c[0].lon,
@@ -243,12 +240,10 @@ impl Step<'_> {
             .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());
         let hits = c.iter().chain([&centre]).all(|c| c.hit);
         let smooth = hits && miss < tolerance;
-        let fy = (band.y0 + y0) as f64 + 0.5;
-        let fx = x0 as f64 + 0.5;
         if !smooth && size > 1 {
-            // The 3 x 3 lines of sight of the four quarters, then their centres.
+            // The 3 x 3 lines of sight of the four quarters' corners.
             let h = size / 2;
-            let (hf, qf) = (h as f64, 0.5 * h as f64);
+            let hf = h as f64;
             let top = self.probe(fx + hf, fy);
             let left = self.probe(fx, fy + hf);
             let right = self.probe(fx + 2.0 * hf, fy + hf);
@@ -260,8 +255,7 @@ impl Step<'_> {
                 (h, h, [centre, right, bottom, c[3]]),
             ];
             for (dx, dy, q) in quarters {
-                let mid = self.probe(fx + dx as f64 + qf, fy + dy as f64 + qf);
-                self.block(band, x0 + dx, y0 + dy, h, q, mid);
+                self.block(band, x0 + dx, y0 + dy, h, q);
             }
             return;
         }
@@ -444,13 +438,10 @@ pub fn apply(
                 a_hi,
                 offsets: Vec::with_capacity(MAX_READS * MAX_READS),
             };
-            let half = 0.5 * BLOCK as f64;
             for bx in 0..bw {
-                let x0 = bx * BLOCK;
                 let [c00, c01] = corners[bx];
                 let [c10, c11] = corners[bx + 1];
-                let centre = step.probe(x0 as f64 + half + 0.5, fy + half);
-                step.block(&mut band, x0, 0, BLOCK, [c00, c10, c01, c11], centre);
+                step.block(&mut band, bx * BLOCK, 0, BLOCK, [c00, c10, c01, c11]);
             }
         });
 }

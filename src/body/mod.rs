@@ -670,6 +670,12 @@ impl AlbedoMap {
     #[inline]
     pub fn scale_at(&self, n_body: DVec3, fallback: f64) -> f64 {
         let (lon, lat) = crate::geometry::lon_lat(n_body);
+        self.scale_at_lon_lat(lon, lat, fallback)
+    }
+
+    /// [`AlbedoMap::scale_at`] at body longitude and latitude [rad].
+    #[inline]
+    fn scale_at_lon_lat(&self, lon: f64, lat: f64, fallback: f64) -> f64 {
         self.map
             .sample(lon, lat)
             .map_or(fallback, |v| v * self.scale_per_value)
@@ -692,10 +698,7 @@ impl AlbedoMap {
         let ratio = footprint_rad / self.map.spacing_rad().1;
         // (NaN reads the map itself too.)
         if ratio.is_nan() || ratio <= 1.0 || self.levels.is_empty() {
-            return self
-                .map
-                .sample(lon, lat)
-                .map_or(fallback, |v| v * self.scale_per_value);
+            return self.scale_at_lon_lat(lon, lat, fallback);
         }
         let lod = ratio.log2();
         let k = lod.floor() as usize;

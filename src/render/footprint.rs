@@ -47,7 +47,6 @@ use crate::body::{AlbedoMap, Relief, Shape};
 use crate::brdf::{Brdf, Local};
 use crate::camera::Intrinsics;
 use crate::scene::Pose;
-use glam::DVec3;
 use rayon::prelude::*;
 
 /// The steepest emission cosine the footprint's stretch follows (beyond it, within a few
@@ -113,8 +112,7 @@ impl Step<'_> {
     /// The line of sight through image point `(u, v)` [px].
     fn probe(&self, u: f64, v: f64) -> Probe {
         let cam = self.pose.camera_position_m;
-        let (x, y) = self.intrinsics.unproject(u, v);
-        let dir = (self.pose.body_from_camera * DVec3::new(x, y, 1.0)).normalize();
+        let dir = super::depth::line_of_sight(self.intrinsics, self.pose, u, v);
         let hit = match self.relief.filter(|r| r.displaces()) {
             Some(r) => r.intersect_displaced(cam, dir).map(|t| {
                 let p = cam + dir * t;

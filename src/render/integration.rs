@@ -423,6 +423,12 @@ pub fn integrate(
     a_cam_m2: f64,
     pl: &mut Vec<f64>,
 ) -> (f64, usize) {
+    // The closed form's constant is the BRDF's own: the one passed here (the reference scale
+    // of `MapFilter::Pixel`), or per quadrangle the map's.
+    let method = match method {
+        Method::Exact(_) => brdf.exact_form().map_or(method, Method::Exact),
+        _ => method,
+    };
     let clip = view.lit_visible();
     let nodes = Nodes::new(boundary_nodes.max(1));
     let (nl, nk) = (trig.n_lon(), trig.n_lat());
@@ -473,10 +479,8 @@ pub fn integrate(
                     }
                     None => brdf,
                 };
-                // The closed form's constant is the BRDF's own (scaled by the map, or the
-                // reference scale of `MapFilter::Pixel`).
-                let method = match method {
-                    Method::Exact(_) => brdf.exact_form().map_or(method, Method::Exact),
+                let method = match (method, albedo) {
+                    (Method::Exact(_), Some(_)) => brdf.exact_form().map_or(method, Method::Exact),
                     _ => method,
                 };
                 let f = if class == BOUNDARY {

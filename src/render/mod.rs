@@ -372,20 +372,12 @@ fn render_in_pool(
     let mut t = StageTimings::default();
     // Under `MapFilter::Pixel` the quadrangles see the map's mean and the footprint step
     // brings the map in per pixel.
-    let pixel_map = match (&scene.body.albedo_map, settings.map_filter) {
-        (Some(a), MapFilter::Pixel) => Some(a),
-        _ => None,
-    };
-    let brdf = match pixel_map {
-        Some(a) => {
+    let (brdf, quad_albedo, pixel_map) = match (&scene.body.albedo_map, settings.map_filter) {
+        (Some(a), MapFilter::Pixel) => {
             let s_ref = footprint::reference_scale(a, scene.body.brdf.scale());
-            scene.body.brdf.with_scale(s_ref)
+            (scene.body.brdf.with_scale(s_ref), None, Some(a))
         }
-        None => scene.body.brdf,
-    };
-    let quad_albedo = match pixel_map {
-        Some(_) => None,
-        None => scene.body.albedo_map.as_ref(),
+        (map, _) => (scene.body.brdf, map.as_ref(), None),
     };
 
     let t0 = Instant::now();

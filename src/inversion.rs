@@ -118,7 +118,7 @@ fn gather(images: &[Image], n: u32) -> Result<Data, InversionError> {
             )));
         }
         let tracer = Tracer::new(im.scene, &im.pose);
-        let e_per_pl = det.signal_factor(&im.scene.sun) * det.exposure_s;
+        let e_per_pl = im.scene.signal_factor() * det.exposure_s;
         let step = 1.0 / n as f64;
         // Every pixel's lines of sight, or None when one is not on the lit first body.
         let per_px: Vec<Option<Vec<[f64; 4]>>> = (0..w * h)

@@ -26,6 +26,37 @@ pub struct Scene {
     pub camera: Camera,
 }
 
+impl Scene {
+    /// The signal factor of Eq. 45 of every band of the camera for light reflected by the
+    /// body (its spectral shape inside each band's integral) [e- s^-1 per sr m^2 of (P/L)].
+    pub fn band_factors(&self) -> Vec<f64> {
+        let spectrum = self.body.spectrum.as_ref();
+        self.camera.detector.band_factors(&self.sun, spectrum)
+    }
+
+    /// A rendered `(P/L)` image of `size` through the camera, every band from the same image
+    /// ([`Detector::image`]): the signal of every band [e-/s] and the DN the camera hands out.
+    pub fn record(&self, pl: &[f64], size: (usize, usize), frame_id: u64) -> (Vec<f64>, Vec<u16>) {
+        let factors = self.band_factors();
+        self.camera.detector.image(|_| pl, size, &factors, frame_id)
+    }
+
+    /// The first band's factor ([`Scene::band_factors`]): a monochrome camera's.
+    pub fn signal_factor(&self) -> f64 {
+        let b = self.camera.detector.band();
+        let spectrum = self.body.spectrum.as_ref();
+        self.sun
+            .reflected_signal_integral(&b.qe, &b.transmittance, spectrum)
+    }
+
+    /// W per sr m^2 of (P/L) over `band_m` (the whole spectrum when `None`): the Sun's
+    /// radiance after reflection by the body (Eq. 9).
+    pub fn radiance_w(&self, band_m: Option<(f64, f64)>) -> f64 {
+        self.sun
+            .reflected_radiance_integral(band_m, self.body.spectrum.as_ref())
+    }
+}
+
 /// A body placed in the first body's frame B.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Placed {

@@ -61,7 +61,7 @@ fn a_different_seed_changes_the_noise() {
         .unwrap();
     let expose = |cfg: &optistim::config::Config| {
         let det = &cfg.scene.camera.detector;
-        let s = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
+        let s = det.signal(&frame.pl, cfg.scene.signal_factor());
         let mut dn = Vec::new();
         det.expose(&s, (frame.width, frame.height), 0, &mut dn);
         dn

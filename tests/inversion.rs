@@ -47,8 +47,8 @@ fn scene(phase_deg: f64) -> Config {
         .unwrap()
         .render(&cfg.scene, &cfg.pose, &cfg.settings)
         .unwrap();
+    let peak = frame.pl.iter().cloned().fold(0.0, f64::max) * cfg.scene.signal_factor();
     let det = &mut cfg.scene.camera.detector;
-    let peak = frame.pl.iter().cloned().fold(0.0, f64::max) * det.signal_factor(&cfg.scene.sun);
     det.exposure_s = 0.66 * det.full_well_e / peak;
     det.adc_gain_dn_per_e = det.adc_max_dn() / det.full_well_e;
     cfg
@@ -64,10 +64,9 @@ fn hapke_parameters_come_back_from_noisy_images_within_their_uncertainties() {
                 .unwrap()
                 .render(&cfg.scene, &cfg.pose, &cfg.settings)
                 .unwrap();
-            let det = &cfg.scene.camera.detector;
             let intr = &cfg.scene.camera.intrinsics;
             let size = (intr.width_px as usize, intr.height_px as usize);
-            det.image(&frame.pl, size, &cfg.scene.sun, 7).1
+            cfg.scene.record(&frame.pl, size, 7).1
         })
         .collect();
     let images: Vec<Image> = configs

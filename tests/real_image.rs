@@ -55,8 +55,7 @@ fn a_misplaced_rendering_is_caught_and_realigned() {
     let cfg = optistim::config::load(scene).unwrap_or_else(|e| panic!("{e}"));
     let mut r = optistim::render::Renderer::new(0).unwrap();
     let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
-    let det = &cfg.scene.camera.detector;
-    let (_, dn) = det.image(&frame.pl, (frame.width, frame.height), &cfg.scene.sun, 0);
+    let (_, dn) = cfg.scene.record(&frame.pl, (frame.width, frame.height), 0);
     let img = Gray::new(
         frame.width,
         frame.height,
@@ -83,11 +82,13 @@ fn allen_moon_p_psi(alpha_deg: f64) -> f64 {
 /// The photo's scene, independently of any camera: the Moon that `config/bfs_25mm.toml`
 /// renders (Sato's Hapke parameters, the albedo map as normal albedos, the DEM) is as bright as
 /// the real Moon over phase. The rendered `p Psi(alpha)` is the irradiance at the camera over
-/// the Sun's at the Moon, times `(range / R)^2`. The map is spectrally grey while the real Moon
-/// is redder than the Sun (V - R about 0.1-0.2 mag redder), so over the whole spectrum the
-/// rendering should sit about 10 % above the V law. It does, at 1.03-1.14 from 10 to 120 deg
-/// (1.14 at the photo's 51.3 deg). So the photo's excess over the rendering (total DN 1.6 times)
-/// lies in the camera's absolute response, not in the Moon.
+/// the Sun's at the Moon, times `(range / R)^2`, with the map spectrally grey. It sits at
+/// 1.03-1.14 of the V law from 10 to 120 deg (1.14 at the photo's 51.3 deg). Earlier notes put
+/// that excess on the Moon's redness; in V with the lunar spectrum it stays (the next test but
+/// one): the map's values are visible-band reflectances already, and the excess lies in the
+/// reflectance domain the map is encoded into. So the photo's excess over the rendering (total
+/// DN 1.6 times) lies mostly in the camera's absolute response; the Moon's redness over the
+/// camera's band accounts for about 6 % of it.
 #[test]
 fn the_rendered_moon_is_as_bright_as_the_real_one() {
     let cfg = optistim::config::load(Path::new("config/bfs_25mm.toml")).unwrap();
@@ -129,4 +130,80 @@ fn the_rendered_moon_is_as_bright_as_the_real_one() {
         .iter()
         .fold((f64::MAX, f64::MIN), |(lo, hi), &q| (lo.min(q), hi.max(q)));
     assert!(hi / lo < 1.15, "{ratios:?}");
+}
+
+/// Bessell's (1990, PASP 102, 1181, Table 2) Johnson-Cousins V response, 470-700 nm.
+fn bessell_v() -> optistim::radiometry::SpectralTable {
+    let nm = (0..24).map(|k| (470.0 + 10.0 * k as f64) * 1e-9).collect();
+    let v = vec![
+        0.0, 0.030, 0.163, 0.458, 0.780, 0.967, 1.0, 0.973, 0.898, 0.792, 0.684, 0.574, 0.461,
+        0.359, 0.270, 0.197, 0.135, 0.081, 0.045, 0.025, 0.017, 0.013, 0.009, 0.0,
+    ];
+    optistim::radiometry::SpectralTable::new(nm, v, (0.0, 1.0)).unwrap()
+}
+
+/// Issue 17: the Moon of `config/bfs_25mm.toml` in Allen's own band, V, grey and with the
+/// lunar reflectance spectrum (Velikodsky et al. 2011, `Reflectance::moon`). The map's value
+/// is the mean of its three channels, the CGI Moon Kit's 643 nm (red) and two mixes of 566
+/// and 415 nm centred on 532 nm (green) and 472 nm (blue); over the lunar spectrum that mean
+/// is the reflectance at 545 nm, where the map's albedo is taken to hold.
+///
+/// What it shows: in V the spectrum moves the disk-integrated brightness by the spectrum's
+/// photon-weighted mean over V relative to 545 nm, +1.0 %; the rendering stays 4-15 % above
+/// Allen's law, so the redness of the Moon does not explain that excess with this map (its
+/// values already are visible-band reflectances). Over the BFS camera's own band the red
+/// Moon's signal is higher than the grey one's (printed), which does bear on the photo's
+/// excess over the rendering.
+#[test]
+fn the_lunar_spectrum_in_v_keeps_the_rendered_moon_near_allens_law() {
+    use optistim::radiometry::{Reflectance, SpectralTable};
+    let cfg = optistim::config::load(Path::new("config/bfs_25mm.toml")).unwrap();
+    let s = &cfg.scene;
+    let moon = Reflectance::moon(545e-9).unwrap();
+    let v = bessell_v();
+    let flat = SpectralTable::flat(400e-9, 800e-9, 1.0);
+    // Photon-weighted, as the V magnitudes of the Sun and the Moon alike.
+    let v_grey = s.sun.signal_integral(&v, &flat);
+    let v_red = s.sun.reflected_signal_integral(&v, &flat, Some(&moon));
+    let f_v = v_red / v_grey;
+    let b = s.camera.detector.band();
+    let f_bfs = s
+        .sun
+        .reflected_signal_integral(&b.qe, &b.transmittance, Some(&moon))
+        / s.sun.signal_integral(&b.qe, &b.transmittance);
+    println!("V: red / grey {f_v:.4}; BFS-U3-31S4M band: red / grey {f_bfs:.4}");
+    // The spectrum's photon-weighted mean over V against its value at 545 nm: +1.0 %.
+    assert!((f_v - 1.0).abs() < 0.02, "{f_v}");
+    // The camera sees the Moon's redder light (its QE reaches 1000 nm): several per cent more.
+    assert!((1.03..1.25).contains(&f_bfs), "{f_bfs}");
+
+    // The rendered p Psi in V with the spectrum, against Allen's law, over phase.
+    let mut red = cfg.clone();
+    red.scene.body.spectrum = Some(moon.clone());
+    let mut r = optistim::render::Renderer::new(0).unwrap();
+    let cam = cfg.pose.camera_position_m;
+    let sun = cfg.pose.sun_position_m;
+    let scale = (cam.length() / s.body.shape.bounding_radius_m()).powi(2);
+    let axis = cam.cross(sun).normalize();
+    let mut ratios = Vec::new();
+    for alpha_deg in [10.0, 30.0, 51.29, 75.0, 90.0, 120.0f64] {
+        let mut pose = cfg.pose;
+        pose.sun_position_m = glam::DQuat::from_axis_angle(axis, alpha_deg.to_radians())
+            * cam.normalize()
+            * sun.length();
+        let f = r.render(&red.scene, &pose, &red.settings).unwrap();
+        // Photons per second per m^2 in V at the camera, over the Sun's at the Moon.
+        let a_cam = s.camera.intrinsics.aperture_area_m2();
+        let moon_v = f.pl.iter().sum::<f64>() * v_red / a_cam;
+        let sun_v = s.sun.area_m2() * v_grey / pose.sun_position_m.length_squared();
+        let rendered = moon_v / sun_v * scale;
+        let real = allen_moon_p_psi(f.stats.phase_deg);
+        println!(
+            "phase {:6.2} deg: p Psi in V, lunar spectrum {rendered:.5}, Allen {real:.5}, ratio {:.3}",
+            f.stats.phase_deg,
+            rendered / real
+        );
+        ratios.push(rendered / real);
+    }
+    assert!(ratios.iter().all(|q| (0.95..1.2).contains(q)), "{ratios:?}");
 }

@@ -80,6 +80,15 @@ struct Scene {
 impl Scene {
     fn parse(source: Source) -> PyResult<Scene> {
         let config = config::parse(&source.text, &source.file).map_err(scene_err)?;
+        // The frame's arrays are height x width: one band, one image.
+        let bands = config.scene.camera.detector.bands.len();
+        if bands > 1 {
+            return Err(scene_err(format!(
+                "{}: camera of {bands} bands: the Python package renders monochrome cameras \
+                 only (one band) so far; `optistim render` writes every band",
+                source.file
+            )));
+        }
         let planner = config.planner();
         Ok(Scene {
             config: Arc::new(config),

@@ -79,7 +79,7 @@ pub fn run(
     let mut renderer = Renderer::new(config.settings.threads)?;
     let planner = config.planner();
     let det = &config.scene.camera.detector;
-    let k = det.signal_factor(&config.scene.sun);
+    let k = config.scene.signal_factor();
     let mut dn = Vec::new();
     let (mut times, mut points) = (Vec::with_capacity(n), Vec::with_capacity(n));
     let mut surface_samples_total = 0;

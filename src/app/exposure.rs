@@ -201,7 +201,7 @@ pub fn run(
     let grid = exposure_grid();
     let mut renderer = Renderer::new(plan.threads)?;
     let planner = config.planner();
-    let k_signal = det.signal_factor(&config.scene.sun);
+    let k_signal = config.scene.signal_factor();
     let mut frames = Vec::with_capacity(poses.len());
     let mut loss = Vec::with_capacity(poses.len());
     let mut pooled_counts = vec![(0.0, 0.0); grid.len()];

@@ -12,6 +12,7 @@
 
 use super::AppError;
 use crate::config::Config;
+use crate::detector::Layout;
 use crate::fidelity::budget::{Plan, Planner};
 use crate::io::fits::{self, Bitpix, Card, Value};
 use crate::render::{FrameStats, Renderer, Settings};
@@ -34,24 +35,28 @@ pub struct FrameMeta {
     pub settings: Settings,
     /// Under `fidelity = "budget"`: what the planner chose and the error it predicts.
     pub plan: Option<Plan>,
-    /// W per sr m^2 of (P/L): the Sun's radiance integrated over `power_band_m`.
-    pub radiance_w: f64,
-    /// e-/s per sr m^2 of (P/L) (Eq. 45).
-    pub signal_factor: f64,
+    /// Per band, W per sr m^2 of (P/L): the Sun's radiance after reflection by the body
+    /// (its spectral shape), integrated over `power_band_m` for a monochrome camera, over
+    /// each band's wavelengths for several.
+    pub band_radiance_w: Vec<f64>,
+    /// Per band, e-/s per sr m^2 of (P/L) (Eq. 45 per band).
+    pub band_factors: Vec<f64>,
     /// The detector's time [ms] (noise, quantisation).
     pub detector_ms: f64,
 }
 
-/// A frame's images, row-major from the top-left, `width x height` each.
+/// A frame's images, row-major from the top-left, `width x height` each; a multi-band
+/// camera's power and signal hold one image per band, one after the other, and its DN one
+/// per band or the one mosaic ([`crate::detector::Detector::dn_planes`]).
 #[derive(Clone, Debug)]
 pub struct ImageSet {
-    /// Collected power [W].
+    /// Collected power [W], per band.
     pub power_w: Vec<f64>,
-    /// Signal [e-/s].
+    /// Signal [e-/s], per band.
     pub signal_e_per_s: Vec<f64>,
     /// Range to the surface [m], NaN where the pixel sees no body.
     pub depth_m: Vec<f64>,
-    /// Saved DN.
+    /// Saved DN, per band or the mosaic.
     pub dn: Vec<u16>,
 }
 
@@ -111,13 +116,17 @@ pub fn detect(
     settings: Settings,
     plan: Option<Plan>,
 ) -> (FrameMeta, ImageSet) {
-    let det = &config.scene.camera.detector;
+    let scene = &config.scene;
+    let det = &scene.camera.detector;
     let t0 = Instant::now();
-    let radiance_w = config.scene.sun.radiance_integral(config.power_band_m);
-    let signal_factor = det.signal_factor(&config.scene.sun);
-    let power_w: Vec<f64> = frame.pl.iter().map(|x| x * radiance_w).collect();
+    let band_radiance_w = band_radiances(config);
+    let band_factors = scene.band_factors();
+    let power_w: Vec<f64> = band_radiance_w
+        .iter()
+        .flat_map(|r| frame.pl.iter().map(move |x| x * r))
+        .collect();
     let size = (frame.width, frame.height);
-    let (signal_e_per_s, dn) = det.image(&frame.pl, size, &config.scene.sun, pose.frame_id);
+    let (signal_e_per_s, dn) = det.image(|_| &frame.pl, size, &band_factors, pose.frame_id);
     let depth_m = frame
         .depth_m
         .unwrap_or_else(|| vec![f64::NAN; frame.width * frame.height]);
@@ -128,8 +137,8 @@ pub fn detect(
         stats: frame.stats,
         settings,
         plan,
-        radiance_w,
-        signal_factor,
+        band_radiance_w,
+        band_factors,
         detector_ms: t0.elapsed().as_secs_f64() * 1e3,
     };
     let images = ImageSet {
@@ -141,9 +150,25 @@ pub fn detect(
     (meta, images)
 }
 
+/// Per band, W per sr m^2 of (P/L) after reflection by the body: over `power_band_m` for a
+/// monochrome camera (the whole spectrum without one), over each band's wavelengths for
+/// several.
+pub fn band_radiances(config: &Config) -> Vec<f64> {
+    let scene = &config.scene;
+    let bands = &scene.camera.detector.bands;
+    if bands.len() == 1 {
+        return vec![scene.radiance_w(config.power_band_m)];
+    }
+    bands
+        .iter()
+        .map(|b| scene.radiance_w(Some(b.range_m())))
+        .collect()
+}
+
 /// The FITS cards every image of the frame carries: scene, pose, camera, and the plan.
 pub fn cards(config: &Config, meta: &FrameMeta) -> Vec<Card> {
     let mut c = header(config, meta);
+    c.extend(band_cards(config, meta));
     if let Some(p) = &meta.plan {
         c.extend(plan_cards(p));
     }
@@ -165,26 +190,32 @@ pub fn encode(
 ) -> Result<Vec<(&'static str, Vec<u8>)>, AppError> {
     let (w, h) = (meta.width, meta.height);
     let n = w * h;
+    let det = &config.scene.camera.detector;
+    let bands = det.bands.len();
     let lens = [
-        images.power_w.len(),
-        images.signal_e_per_s.len(),
-        images.depth_m.len(),
-        images.dn.len(),
+        (images.power_w.len(), bands),
+        (images.signal_e_per_s.len(), bands),
+        (images.depth_m.len(), 1),
+        (images.dn.len(), det.dn_planes()),
     ];
-    if let Some((i, len)) = lens.iter().enumerate().find(|(_, l)| **l != n) {
+    if let Some((i, (len, planes))) = lens.iter().enumerate().find(|(_, (l, p))| *l != n * p) {
         return Err(AppError::Images(format!(
-            "{}: {len} pixels, the frame is {w} x {h}",
+            "{}: {len} pixels, the frame is {w} x {h} x {planes}",
             FILES[i]
         )));
     }
     let cards = cards(config, meta);
-    let det = &config.scene.camera.detector;
-    let png = crate::io::encode_png_gray(w, h, images.dn, det.saved_bits).map_err(|source| {
-        crate::io::IoError::Png {
-            path: FILES[3].into(),
-            source,
-        }
-    })?;
+    let mut text = vec![("bands", band_names(det))];
+    if let Layout::Bayer(order) = det.layout {
+        text.push(("bayer_pattern", order.name().to_string()));
+    }
+    let png =
+        crate::io::encode_png_planes(w, h, images.dn, det.saved_bits, &text).map_err(|source| {
+            crate::io::IoError::Png {
+                path: FILES[3].into(),
+                source,
+            }
+        })?;
     Ok(vec![
         (
             FILES[0],
@@ -366,6 +397,79 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
     ]
 }
 
+/// The bands' names, comma-separated (in the order of the cubes' planes).
+fn band_names(det: &crate::detector::Detector) -> String {
+    let names: Vec<&str> = det.bands.iter().map(|b| b.name.as_str()).collect();
+    names.join(",")
+}
+
+/// The cards naming the bands: `NBANDS`; per band `k` (from 1) `BANDk` its name, `BANDkLO`
+/// and `BANDkHI` its wavelengths [nm], `BANDkC` its effective wavelength [nm], `PL2Wk` and
+/// `PL2SIGk` its factors; `BAYERPAT` for a mosaic (the DN image is the raw mosaic).
+fn band_cards(config: &Config, meta: &FrameMeta) -> Vec<Card> {
+    let det = &config.scene.camera.detector;
+    let f = |k: String, v: f64, c: &str| Card::new(&k, Value::Float(v), c);
+    let mut c = vec![Card::new(
+        "NBANDS",
+        Value::Int(det.bands.len() as i64),
+        "bands (NAXIS3 of power and signal)",
+    )];
+    for (k, b) in det.bands.iter().enumerate().take(9) {
+        let i = k + 1;
+        let (lo, hi) = b.range_m();
+        c.push(Card::new(
+            &format!("BAND{i}"),
+            Value::Str(b.name.clone()),
+            "band name",
+        ));
+        c.push(f(
+            format!("BAND{i}LO"),
+            lo * 1e9,
+            "band's shortest wavelength [nm]",
+        ));
+        c.push(f(
+            format!("BAND{i}HI"),
+            hi * 1e9,
+            "band's longest wavelength [nm]",
+        ));
+        c.push(f(
+            format!("BAND{i}C"),
+            b.centre_m() * 1e9,
+            "effective wavelength [nm]",
+        ));
+        c.push(f(
+            format!("PL2W{i}"),
+            meta.band_radiance_w[k],
+            "W per sr m^2 of (P/L)",
+        ));
+        c.push(f(
+            format!("PL2SIG{i}"),
+            meta.band_factors[k],
+            "e-/s per sr m^2 of (P/L)",
+        ));
+    }
+    if let Layout::Bayer(order) = det.layout {
+        c.push(Card::new(
+            "BAYERPAT",
+            Value::Str(order.name().into()),
+            "image.png is the raw mosaic",
+        ));
+    }
+    if let Some(r) = &config.scene.body.spectrum {
+        c.push(Card::new(
+            "REFLSPEC",
+            Value::Str(r.name.clone()),
+            "albedo's spectral shape",
+        ));
+        c.push(f(
+            "REFLREF".into(),
+            r.reference_m * 1e9,
+            "albedo holds at [nm]",
+        ));
+    }
+    c
+}
+
 fn header(config: &Config, meta: &FrameMeta) -> Vec<Card> {
     let s = &config.scene;
     let i = &s.camera.intrinsics;
@@ -435,12 +539,12 @@ fn header(config: &Config, meta: &FrameMeta) -> Vec<Card> {
         f("EXPTIME", s.camera.detector.exposure_s, "exposure [s]"),
         f(
             "PL2W",
-            meta.radiance_w,
+            meta.band_radiance_w[0],
             "W per sr m^2 of (P/L): int L_e dlambda",
         ),
         f(
             "PL2SIG",
-            meta.signal_factor,
+            meta.band_factors[0],
             "e-/s per sr m^2 of (P/L) (Eq. 45)",
         ),
         Card::new(

@@ -114,7 +114,10 @@ pub fn run(
     let (w, h) = (meta.width, meta.height);
     let signal = &images.signal_e_per_s;
     if let Some((error_pl, _)) = &reference {
-        let error_w: Vec<f64> = error_pl.iter().map(|x| x * meta.radiance_w).collect();
+        let error_w: Vec<f64> = error_pl
+            .iter()
+            .map(|x| x * meta.band_radiance_w[0])
+            .collect();
         fits::write(
             &out.join("error.fits"),
             w,

@@ -132,6 +132,9 @@ pub struct Body {
     /// map's), with `body.displacement` moves the surface to `R + h`, and with
     /// `render.self_shadowing` hides the Sun and the camera (ray marching or a horizon map).
     pub relief: Option<Relief>,
+    /// The albedo's spectral shape (`body.reflectance_spectrum`): the albedo and its map hold
+    /// at the spectrum's reference wavelength; grey when `None`.
+    pub spectrum: Option<crate::radiometry::Reflectance>,
 }
 
 /// The radius of the sphere bounding the surface as rendered [m]: the shape's, or a

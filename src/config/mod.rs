@@ -9,10 +9,10 @@ use crate::brdf::{
     AlbedoType, Area, Brdf, Hapke, HapkeParams, Lambert, LommelSeeliger, OrenNayar, Phong, Specular,
 };
 use crate::camera::{Brown, Intrinsics};
-use crate::detector::Detector;
 use crate::detector::noise::{DarkCurrent, Noise, Prnu, Readout, Shot};
+use crate::detector::{Band, Bayer, Detector, Layout};
 use crate::geometry::{body_from_camera_wxyz, look_at};
-use crate::radiometry::{AU, SpectralTable, SunSpectrum};
+use crate::radiometry::{AU, Reflectance, SpectralTable, SunSpectrum};
 use crate::render::gridding::Gridding;
 use crate::render::integration::Method;
 use crate::render::reconstruction::Reconstruction;
@@ -238,11 +238,26 @@ impl Validator<'_> {
         let mut others = Vec::new();
         for (k, b) in raw.body.iter().enumerate().skip(1) {
             others.push(self.placed(k, b, &body, &others, sun_position_m)?);
+            // One (P/L) image serves every band only while the bodies share one spectrum.
+            if others[k - 1].body.spectrum != body.spectrum {
+                return self.err(
+                    &format!("body[{k}].reflectance_spectrum"),
+                    "(differs from the first body's)",
+                    "the same spectral shape as the first body's (or none on both)",
+                );
+            }
         }
         let (camera, power_band_m) = self.camera(&raw.camera)?;
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
         let settings = self.render(&raw.render, &body)?;
         let stimulator = match &raw.stimulator {
+            Some(_) if camera.detector.bands.len() > 1 => {
+                return self.err(
+                    "stimulator",
+                    format!("a camera of {} bands", camera.detector.bands.len()),
+                    "a monochrome camera (one band): colour screens are not built yet",
+                );
+            }
             Some(st) => Some(self.stimulator(st, &camera.intrinsics)?),
             None => None,
         };
@@ -728,13 +743,44 @@ impl Validator<'_> {
             _ => None,
         };
         let relief = self.relief(b, radius_m, ellipsoid.as_ref())?;
+        let spectrum = b
+            .reflectance_spectrum
+            .as_ref()
+            .map(|r| self.spectrum(r))
+            .transpose()?;
         Ok(Body {
             name: b.name.clone(),
             shape,
             brdf,
             albedo_map,
             relief,
+            spectrum,
         })
+    }
+
+    /// `body.reflectance_spectrum`: a built-in table or one given, and its reference.
+    fn spectrum(&self, r: &RawSpectrum) -> R<Reflectance> {
+        let key = "body.reflectance_spectrum";
+        let reference_m = self.positive(&format!("{key}.reference_nm"), r.reference_nm)? * 1e-9;
+        let bad = |e: crate::radiometry::TableError| ConfigError::Invalid {
+            file: self.file.to_string(),
+            key: key.to_string(),
+            value: format!("reference_nm = {}", r.reference_nm),
+            allowed: format!("a spectrum positive at its reference ({e})"),
+        };
+        match (&r.table, &r.wavelength_nm, &r.value) {
+            (Some(t), None, None) if t == "moon" => Reflectance::moon(reference_m).map_err(bad),
+            (Some(t), None, None) => self.err(&format!("{key}.table"), t, "moon"),
+            (None, Some(wl), Some(v)) => {
+                let table = self.table(key, wl, v, (0.0, f64::INFINITY))?;
+                Reflectance::new("tabulated", table, reference_m).map_err(bad)
+            }
+            _ => self.err(
+                key,
+                "(table and wavelength_nm / value)",
+                "either table = \"moon\" or wavelength_nm and value, with reference_nm",
+            ),
+        }
     }
 
     /// The body's relief: its DEM (heights or radii from the centre, displacing or not), the
@@ -1080,16 +1126,7 @@ impl Validator<'_> {
         if !c.skew_px.is_finite() {
             return self.err("camera.skew_px", c.skew_px, "a finite number [px]");
         }
-        let d = &c.distortion;
-        for (k, v) in [
-            ("k1", d.k1),
-            ("k2", d.k2),
-            ("k3", d.k3),
-            ("p1", d.p1),
-            ("p2", d.p2),
-        ] {
-            self.in_range(&format!("camera.distortion.{k}"), v, -10.0, 10.0)?;
-        }
+        let distortion = self.brown("camera.distortion", &c.distortion)?;
         let intrinsics = Intrinsics {
             width_px: w as u32,
             height_px: h as u32,
@@ -1098,27 +1135,9 @@ impl Validator<'_> {
             f_number,
             principal_point_px: pp,
             skew_px: c.skew_px,
-            distortion: Brown {
-                k1: d.k1,
-                k2: d.k2,
-                k3: d.k3,
-                p1: d.p1,
-                p2: d.p2,
-            },
+            distortion,
         };
-        let qe = self.table("camera.qe", &c.qe.wavelength_nm, &c.qe.value, (0.0, 1.0))?;
-        let transmittance = match &c.transmittance {
-            Some(t) => self.table(
-                "camera.transmittance",
-                &t.wavelength_nm,
-                &t.value,
-                (0.0, 1.0),
-            )?,
-            None => {
-                let (lo, hi) = qe.range_m();
-                SpectralTable::flat(lo, hi, 1.0)
-            }
-        };
+        let (bands, layout) = self.bands(c)?;
         if !(1..=16).contains(&c.bit_depth) {
             return self.err("camera.bit_depth", c.bit_depth, "an integer in [1, 16]");
         }
@@ -1167,8 +1186,8 @@ impl Validator<'_> {
             offset_dn: self.non_negative("camera.offset_dn", c.offset_dn)?,
             bit_depth: c.bit_depth as u32,
             saved_bits: saved_bits as u32,
-            qe,
-            transmittance,
+            bands,
+            layout,
             psf_sigma_px: self.in_range("camera.psf_sigma_px", c.psf_sigma_px, 0.0, 100.0)?,
             noise,
             seed: n.seed,
@@ -1193,6 +1212,118 @@ impl Validator<'_> {
             },
             band,
         ))
+    }
+
+    /// Brown coefficients at `key`, each in [-10, 10].
+    fn brown(&self, key: &str, d: &RawDistortion) -> R<Brown> {
+        for (k, v) in [
+            ("k1", d.k1),
+            ("k2", d.k2),
+            ("k3", d.k3),
+            ("p1", d.p1),
+            ("p2", d.p2),
+        ] {
+            self.in_range(&format!("{key}.{k}"), v, -10.0, 10.0)?;
+        }
+        Ok(Brown {
+            k1: d.k1,
+            k2: d.k2,
+            k3: d.k3,
+            p1: d.p1,
+            p2: d.p2,
+        })
+    }
+
+    /// The camera's bands: `camera.qe` (one band, `mono`) or `[[camera.band]]`, each with its
+    /// transmittance (its own, else the camera's, else 1), and the mosaic over them.
+    fn bands(&self, c: &RawCamera) -> R<(Vec<Band>, Layout)> {
+        let curve =
+            |key: &str, t: &RawCurve| self.table(key, &t.wavelength_nm, &t.value, (0.0, 1.0));
+        let optics = c
+            .transmittance
+            .as_ref()
+            .map(|t| curve("camera.transmittance", t))
+            .transpose()?;
+        let transmittance = |own: Option<SpectralTable>, qe: &SpectralTable| {
+            own.or_else(|| optics.clone()).unwrap_or_else(|| {
+                let (lo, hi) = qe.range_m();
+                SpectralTable::flat(lo, hi, 1.0)
+            })
+        };
+        let bands = match (&c.qe, c.band.is_empty()) {
+            (Some(q), true) => {
+                let qe = curve("camera.qe", q)?;
+                vec![Band {
+                    name: "mono".into(),
+                    transmittance: transmittance(None, &qe),
+                    qe,
+                    psf_sigma_px: None,
+                    distortion: None,
+                }]
+            }
+            (None, false) => {
+                let mut bands: Vec<Band> = Vec::new();
+                for (k, b) in c.band.iter().enumerate() {
+                    let key = format!("camera.band[{k}]");
+                    if b.name.is_empty() || bands.iter().any(|o| o.name == b.name) {
+                        return self.err(&format!("{key}.name"), &b.name, "a name of its own");
+                    }
+                    let qe = curve(&format!("{key}.qe"), &b.qe)?;
+                    let own = b
+                        .transmittance
+                        .as_ref()
+                        .map(|t| curve(&format!("{key}.transmittance"), t))
+                        .transpose()?;
+                    let psf_sigma_px = b
+                        .psf_sigma_px
+                        .map(|s| self.in_range(&format!("{key}.psf_sigma_px"), s, 0.0, 100.0))
+                        .transpose()?;
+                    let distortion = b
+                        .distortion
+                        .as_ref()
+                        .map(|d| self.brown(&format!("{key}.distortion"), d))
+                        .transpose()?;
+                    bands.push(Band {
+                        name: b.name.clone(),
+                        transmittance: transmittance(own, &qe),
+                        qe,
+                        psf_sigma_px,
+                        distortion,
+                    });
+                }
+                if bands.len() > 64 {
+                    return self.err("camera.band", bands.len(), "at most 64 bands");
+                }
+                bands
+            }
+            (Some(_), false) => {
+                return self.err(
+                    "camera.qe",
+                    "(with [[camera.band]])",
+                    "either camera.qe (one band) or [[camera.band]], each with its qe",
+                );
+            }
+            (None, true) => {
+                return self.err("camera.qe", "(missing)", "a QE curve, or [[camera.band]]");
+            }
+        };
+        let layout = match c.mosaic.as_deref() {
+            None => Layout::Planes,
+            Some(m) => {
+                let Some(order) = Bayer::ALL.into_iter().find(|o| o.name() == m) else {
+                    return self.err("camera.mosaic", m, "RGGB, BGGR, GRBG or GBRG");
+                };
+                if bands.len() != 3 {
+                    return self.err(
+                        "camera.mosaic",
+                        m,
+                        "a mosaic over exactly three [[camera.band]]: R, G and B, in that order",
+                    );
+                }
+                Layout::Bayer(order)
+            }
+        };
+        Ok((bands, layout))
     }
 
     fn pose(&self, p: &RawPose, sun_position_m: DVec3, body: &Body) -> R<Pose> {

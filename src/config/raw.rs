@@ -65,6 +65,9 @@ pub struct RawBody {
     /// `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling_factor]`.
     pub hapke: Option<Vec<f64>>,
     pub albedo_map: Option<RawMap>,
+    /// The albedo's spectral shape: `{ table = "moon", reference_nm = 549 }` or
+    /// `{ wavelength_nm = [...], value = [...], reference_nm = ... }`.
+    pub reflectance_spectrum: Option<RawSpectrum>,
     /// Heights above `radius_m` (after the encoding: metres; the shared LOLA DEM is in km,
     /// so `scale = 1000`).
     pub dem_map: Option<RawMap>,
@@ -192,8 +195,16 @@ pub struct RawCamera {
     pub bit_depth: i64,
     /// The camera's output depth: the ADC's most significant bits (`bit_depth` when absent).
     pub saved_bit_depth: Option<i64>,
-    pub qe: RawCurve,
+    /// A monochrome camera's QE (or `[[camera.band]]`).
+    pub qe: Option<RawCurve>,
+    /// The optics' transmittance (every band's, unless the band has its own).
     pub transmittance: Option<RawCurve>,
+    /// The camera's wavebands, each with its own QE (instead of `qe`).
+    #[serde(default)]
+    pub band: Vec<RawBand>,
+    /// A Bayer mosaic over three bands R, G, B (in `[[camera.band]]` order): `RGGB`, `BGGR`,
+    /// `GRBG` or `GBRG`. Without it every band is a full image.
+    pub mosaic: Option<String>,
     /// Gaussian PSF of the optics (and seeing) [px], applied to the camera's own images only.
     #[serde(default)]
     pub psf_sigma_px: f64,
@@ -201,6 +212,29 @@ pub struct RawCamera {
     pub power_band_nm: Option<[f64; 2]>,
     #[serde(default)]
     pub noise: RawNoise,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawBand {
+    pub name: String,
+    pub qe: RawCurve,
+    pub transmittance: Option<RawCurve>,
+    /// Longitudinal chromatic aberration: this band's Gaussian PSF [px].
+    pub psf_sigma_px: Option<f64>,
+    /// Lateral chromatic aberration: this band's Brown coefficients.
+    pub distortion: Option<RawDistortion>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSpectrum {
+    /// A built-in spectrum: `moon` (Velikodsky et al. 2011, the average Moon).
+    pub table: Option<String>,
+    pub wavelength_nm: Option<Vec<f64>>,
+    pub value: Option<Vec<f64>>,
+    /// Where the albedo (and its map) holds [nm].
+    pub reference_nm: f64,
 }
 
 #[derive(Debug, Default, Deserialize)]

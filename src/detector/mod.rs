@@ -1,12 +1,101 @@
 //! The detector: (P/L) per pixel -> signal S [e-/s] (Eq. 45) -> electrons with noises, capped
 //! at the full well (Eq. 46) -> digital numbers (Eq. 47).
+//!
+//! A camera has one or more [`Band`]s, each with its own QE and transmittance, hence its own
+//! factor of Eq. 45 (the paper's Sec. 4.9: "for a multi-channel image, if (P/L) is
+//! spectral-independent, the values in each channel can be obtained simply by computing the
+//! correct spectral integral along the corresponding waveband"): the geometry is rendered
+//! once and every band is a multiplication. How the bands reach the pixels is the
+//! [`Layout`]: a full image per band (three-chip cameras, filter wheels), or a Bayer mosaic
+//! whose every pixel records its own band. The camera hands out what the sensor records: a
+//! mosaic stays a mosaic (no demosaicing).
 
 pub mod noise;
 pub mod psf;
 
-use crate::radiometry::{SpectralTable, SunSpectrum};
+use crate::radiometry::{Reflectance, SpectralTable, SunSpectrum};
 use noise::{Noise, Stream, rng};
 use rayon::prelude::*;
+
+/// One waveband of a camera (`[[camera.band]]`; a camera with one `qe` curve has one band).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Band {
+    /// Its name in headers and files (`"R"`, `"G"`, `"B"`, `"F550"`, ...).
+    pub name: String,
+    pub qe: SpectralTable,
+    pub transmittance: SpectralTable,
+    /// Longitudinal chromatic aberration (Sec. 6.1.2): the band's own Gaussian PSF [px],
+    /// replacing the camera's `psf_sigma_px` on the camera's own images.
+    pub psf_sigma_px: Option<f64>,
+    /// Lateral chromatic aberration (Sec. 6.1.2): the band's own Brown coefficients (Eq. 39),
+    /// replacing the camera's in the projection before gridding.
+    pub distortion: Option<crate::camera::Brown>,
+}
+
+impl Band {
+    /// The wavelengths the band sees [m]: where its QE and transmittance are both tabulated.
+    pub fn range_m(&self) -> (f64, f64) {
+        let (a, b) = self.qe.range_m();
+        let (c, d) = self.transmittance.range_m();
+        (a.max(c), b.min(d).max(a.max(c)))
+    }
+
+    /// The band's effective wavelength [m]: the mean of lambda weighted by `QE T lambda` over
+    /// a flat photon spectrum (a header value, not used in any integral).
+    pub fn centre_m(&self) -> f64 {
+        let (lo, hi) = self.range_m();
+        let w = |l: f64| self.qe.at(l) * self.transmittance.at(l) * l;
+        let knots = self.qe.wavelengths_m();
+        let n = crate::radiometry::integrate(|l| w(l) * l, lo, hi, knots);
+        let d = crate::radiometry::integrate(w, lo, hi, knots);
+        if d > 0.0 { n / d } else { 0.5 * (lo + hi) }
+    }
+}
+
+/// The order of a Bayer mosaic's 2 x 2 cell, read left to right, top to bottom, from the
+/// image's top-left pixel: `Rggb` puts R at (0, 0), G at (1, 0) and (0, 1), B at (1, 1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bayer {
+    Rggb,
+    Bggr,
+    Grbg,
+    Gbrg,
+}
+
+impl Bayer {
+    pub const ALL: [Bayer; 4] = [Bayer::Rggb, Bayer::Bggr, Bayer::Grbg, Bayer::Gbrg];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Bayer::Rggb => "RGGB",
+            Bayer::Bggr => "BGGR",
+            Bayer::Grbg => "GRBG",
+            Bayer::Gbrg => "GBRG",
+        }
+    }
+
+    /// The band (0 = R, 1 = G, 2 = B) pixel `(x, y)` records.
+    #[inline]
+    pub fn band_at(self, x: usize, y: usize) -> usize {
+        let cell = self.name().as_bytes()[(y & 1) * 2 + (x & 1)];
+        match cell {
+            b'R' => 0,
+            b'G' => 1,
+            _ => 2,
+        }
+    }
+}
+
+/// How the bands reach the pixels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Layout {
+    /// A full image per band (a monochrome camera's one band, three-chip cameras, filter
+    /// wheels).
+    #[default]
+    Planes,
+    /// One image, each pixel behind its own filter of a Bayer mosaic; bands R, G, B in order.
+    Bayer(Bayer),
+}
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Detector {
@@ -21,8 +110,9 @@ pub struct Detector {
     /// The bits the camera hands out: the ADC's `bit_depth` most significant ones
     /// (`saved_bits <= bit_depth`; a 12-bit ADC saved at 8 bit gives `DN_12 >> 4`).
     pub saved_bits: u32,
-    pub qe: SpectralTable,
-    pub transmittance: SpectralTable,
+    /// The wavebands, at least one; the first is a monochrome camera's only band.
+    pub bands: Vec<Band>,
+    pub layout: Layout,
     /// The optics' (and, from the ground, the seeing's) Gaussian PSF [px], 0 = none. Applied
     /// by [`Detector::expose`] only: the signal handed to a stimulator stays sharp, since the
     /// flight camera's own optics blur the screen.
@@ -32,9 +122,31 @@ pub struct Detector {
 }
 
 impl Detector {
-    /// The signal factor of Eq. 45 [e- s^-1 per sr m^2 of (P/L)].
-    pub fn signal_factor(&self, sun: &SunSpectrum) -> f64 {
-        sun.signal_integral(&self.qe, &self.transmittance)
+    /// A monochrome detector's one band (the first band of any).
+    pub fn band(&self) -> &Band {
+        &self.bands[0]
+    }
+
+    /// The signal factor of Eq. 45 of every band [e- s^-1 per sr m^2 of (P/L)] for light
+    /// reflected by a surface of spectral shape `reflectance` (grey when `None`).
+    pub fn band_factors(&self, sun: &SunSpectrum, reflectance: Option<&Reflectance>) -> Vec<f64> {
+        self.bands
+            .iter()
+            .map(|b| sun.reflected_signal_integral(&b.qe, &b.transmittance, reflectance))
+            .collect()
+    }
+
+    /// How many images the camera hands out: one per band, or one mosaic.
+    pub fn dn_planes(&self) -> usize {
+        match self.layout {
+            Layout::Planes => self.bands.len(),
+            Layout::Bayer(_) => 1,
+        }
+    }
+
+    /// The PSF sigma [px] of band `b` on the camera's own images.
+    pub fn band_psf_sigma_px(&self, b: usize) -> f64 {
+        self.bands[b].psf_sigma_px.unwrap_or(self.psf_sigma_px)
     }
 
     /// Signal `S = (P/L) * signal_factor` per pixel [e-/s] (Eq. 45).
@@ -42,18 +154,54 @@ impl Detector {
         pl.par_iter().map(|&x| x * signal_factor).collect()
     }
 
-    /// A rendered frame's `(P/L)` image of `size` through this detector: the signal [e-/s]
-    /// (Eq. 45) and the DN the camera hands out ([`Detector::expose`]).
-    pub fn image(
+    /// A rendered frame through this detector: band `b`'s signal is `pl(b) * factors[b]`
+    /// [e-/s] (Eq. 45 per band; `pl(b)` is the band's (P/L) image of `size`, the same image
+    /// for every band unless a band's own distortion moved it). Returns the signal of every
+    /// band, band after band (`bands x height x width`), and the DN the camera hands out
+    /// ([`Detector::expose`]): one image per band, or the mosaic (`height x width`).
+    pub fn image<'a>(
         &self,
-        pl: &[f64],
+        pl: impl Fn(usize) -> &'a [f64],
         size: (usize, usize),
-        sun: &SunSpectrum,
+        factors: &[f64],
         frame_id: u64,
     ) -> (Vec<f64>, Vec<u16>) {
-        let signal = self.signal(pl, self.signal_factor(sun));
+        let n = size.0 * size.1;
+        let mut signal = Vec::with_capacity(n * factors.len());
+        for (b, &k) in factors.iter().enumerate() {
+            signal.extend(self.signal(pl(b), k));
+        }
         let mut dn = Vec::new();
-        self.expose(&signal, size, frame_id, &mut dn);
+        match self.layout {
+            Layout::Planes => {
+                let mut plane = Vec::new();
+                for b in 0..factors.len() {
+                    let sigma = self.band_psf_sigma_px(b);
+                    let s = &signal[b * n..(b + 1) * n];
+                    self.expose_plane(s, size, frame_id, sigma, b as u64, &mut plane);
+                    dn.extend_from_slice(&plane);
+                }
+            }
+            Layout::Bayer(order) => {
+                // Each band blurred by its own optics, then each pixel keeps its filter's.
+                let blurred: Vec<std::borrow::Cow<[f64]>> = (0..factors.len())
+                    .map(|b| {
+                        let s = &signal[b * n..(b + 1) * n];
+                        let sigma = self.band_psf_sigma_px(b);
+                        if sigma > 0.0 {
+                            let r = psf::radius(sigma);
+                            psf::gaussian_blur(s, size.0, size.1, sigma, r).into()
+                        } else {
+                            s.into()
+                        }
+                    })
+                    .collect();
+                let mosaic: Vec<f64> = (0..n)
+                    .map(|i| blurred[order.band_at(i % size.0, i / size.0)][i])
+                    .collect();
+                self.expose_plane(&mosaic, size, frame_id, 0.0, 0, &mut dn);
+            }
+        }
         (signal, dn)
     }
 
@@ -82,9 +230,24 @@ impl Detector {
         frame_id: u64,
         dn_out: &mut Vec<u16>,
     ) {
+        self.expose_plane(signal_e_per_s, size, frame_id, self.psf_sigma_px, 0, dn_out);
+    }
+
+    /// [`Detector::expose`] of one image of a multi-band camera: blurred by `psf_sigma_px`,
+    /// its noises drawn from streams of its own (`plane`; plane 0's are a monochrome
+    /// camera's), so that the bands' noises are independent.
+    pub fn expose_plane(
+        &self,
+        signal_e_per_s: &[f64],
+        size: (usize, usize),
+        frame_id: u64,
+        psf_sigma_px: f64,
+        plane: u64,
+        dn_out: &mut Vec<u16>,
+    ) {
         let blurred;
-        let signal_e_per_s = if self.psf_sigma_px > 0.0 {
-            let s = self.psf_sigma_px;
+        let signal_e_per_s = if psf_sigma_px > 0.0 {
+            let s = psf_sigma_px;
             blurred = psf::gaussian_blur(signal_e_per_s, size.0, size.1, s, psf::radius(s));
             &blurred[..]
         } else {
@@ -111,7 +274,7 @@ impl Detector {
                 // patterns' independent of the frame, the temporal noises' seeded by it); draws
                 // are taken in pixel order, so a pixel gets the same draws whatever the thread
                 // count. Seeding per block rather than per pixel: seeding cost most of the time.
-                let c = chunk as u64;
+                let c = chunk as u64 | plane << 40;
                 let mut fixed_rng = fixed.then(|| rng(seed, Stream::Fixed, None, c));
                 let mut temporal_rng =
                     temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), c));
@@ -233,8 +396,14 @@ mod tests {
             offset_dn: 10.0,
             bit_depth: 12,
             saved_bits: 12,
-            qe: SpectralTable::flat(400e-9, 700e-9, 0.5),
-            transmittance: SpectralTable::flat(400e-9, 700e-9, 1.0),
+            bands: vec![Band {
+                name: "mono".into(),
+                qe: SpectralTable::flat(400e-9, 700e-9, 0.5),
+                transmittance: SpectralTable::flat(400e-9, 700e-9, 1.0),
+                psf_sigma_px: None,
+                distortion: None,
+            }],
+            layout: Layout::Planes,
             psf_sigma_px: 0.0,
             noise,
             seed: 3,

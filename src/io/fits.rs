@@ -54,9 +54,11 @@ pub enum Bitpix {
     F64,
 }
 
-/// Writes `data` (row-major from the top-left) as a `width x height` image. FITS stores the
-/// first row at the bottom by convention; rows are flipped so that viewers show the image the
-/// right way up, and the header says so (`ROWORDER`).
+/// Writes `data` (row-major from the top-left) as a `width x height` image, or as a cube of
+/// such images one after the other (`NAXIS3` of them, a multi-band camera's bands) when
+/// `data` holds several. FITS stores the first row at the bottom by convention; rows are
+/// flipped so that viewers show the image the right way up, and the header says so
+/// (`ROWORDER`).
 pub fn write(
     path: &Path,
     width: usize,
@@ -91,9 +93,15 @@ pub fn encode(
         }),
         "IEEE floating point",
     );
-    header += &card("NAXIS", &Value::Int(2), "image");
+    let n = width * height;
+    let planes = if n == 0 { 1 } else { (data.len() / n).max(1) };
+    let naxis = if planes > 1 { 3 } else { 2 };
+    header += &card("NAXIS", &Value::Int(naxis), "image, or a cube of bands");
     header += &card("NAXIS1", &Value::Int(width as i64), "columns (u)");
     header += &card("NAXIS2", &Value::Int(height as i64), "rows (v)");
+    if planes > 1 {
+        header += &card("NAXIS3", &Value::Int(planes as i64), "bands");
+    }
     header += &card(
         "ROWORDER",
         &Value::Str("BOTTOM_UP".into()),
@@ -107,8 +115,9 @@ pub fn encode(
         header.push(' ');
     }
     let mut bytes = header.into_bytes();
-    for row in (0..height).rev() {
-        for &x in &data[row * width..(row + 1) * width] {
+    for (p, row) in (0..planes).flat_map(|p| (0..height).rev().map(move |r| (p, r))) {
+        let start = p * n + row * width;
+        for &x in &data[start..start + width] {
             match bitpix {
                 Bitpix::F32 => bytes.extend_from_slice(&(x as f32).to_be_bytes()),
                 Bitpix::F64 => bytes.extend_from_slice(&x.to_be_bytes()),

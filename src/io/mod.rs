@@ -117,6 +117,44 @@ pub fn encode_png_gray(
     }
 }
 
+/// A camera's DN as `image.png`: one plane grey; three planes (a three-band camera's R, G,
+/// B, one after the other) as an RGB image; any other count of planes stacked top to bottom
+/// into one grey image `planes x height` rows tall. 8 bit up to `bit_depth` 8, else 16.
+/// `text`: tEXt chunks (keyword, text), e.g. a mosaic's pattern.
+pub fn encode_png_planes(
+    width: usize,
+    height: usize,
+    dn: &[u16],
+    bit_depth: u32,
+    text: &[(&str, String)],
+) -> Result<Vec<u8>, png::EncodingError> {
+    let n = width * height;
+    let planes = if n == 0 { 1 } else { dn.len() / n };
+    let (color, rows, samples) = if planes == 3 {
+        let rgb: Vec<u16> = (0..n)
+            .flat_map(|i| [dn[i], dn[n + i], dn[2 * n + i]])
+            .collect();
+        (png::ColorType::Rgb, height, std::borrow::Cow::Owned(rgb))
+    } else {
+        let rows = height * planes.max(1);
+        (
+            png::ColorType::Grayscale,
+            rows,
+            std::borrow::Cow::Borrowed(dn),
+        )
+    };
+    let (depth, data): (_, Vec<u8>) = if bit_depth <= 8 {
+        let d = samples.iter().map(|&x| x.min(255) as u8).collect();
+        (png::BitDepth::Eight, d)
+    } else {
+        (
+            png::BitDepth::Sixteen,
+            samples.iter().flat_map(|&x| x.to_be_bytes()).collect(),
+        )
+    };
+    encode_png_text(width, rows, color, depth, &data, text)
+}
+
 /// Rows encoded between pause points.
 const BAND_ROWS: usize = 64;
 
@@ -128,10 +166,25 @@ fn encode_png(
     depth: png::BitDepth,
     data: &[u8],
 ) -> Result<Vec<u8>, png::EncodingError> {
+    encode_png_text(width, height, color, depth, data, &[])
+}
+
+/// [`encode_png`] with tEXt chunks.
+fn encode_png_text(
+    width: usize,
+    height: usize,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    data: &[u8],
+    text: &[(&str, String)],
+) -> Result<Vec<u8>, png::EncodingError> {
     let mut out = Vec::new();
     let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
     enc.set_color(color);
     enc.set_depth(depth);
+    for (k, t) in text {
+        enc.add_text_chunk(k.to_string(), t.clone())?;
+    }
     // Fast deflate: these images are written per frame; size matters less than time.
     enc.set_compression(png::Compression::Fast);
     let mut w = enc.write_header()?;

@@ -158,7 +158,7 @@ impl FrameMaker {
         t.render = ms(t0);
         let t0 = Instant::now();
         let det = &cfg.scene.camera.detector;
-        let signal = det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun));
+        let signal = det.signal(&frame.pl, cfg.scene.signal_factor());
         t.signal = ms(t0);
         let t0 = Instant::now();
         let stimulator = match &self.stimulator {

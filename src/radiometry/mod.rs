@@ -102,6 +102,13 @@ impl SpectralTable {
         &self.wavelength_m
     }
 
+    /// Linear interpolation, the end values held outside the tabulated range (for a
+    /// reflectance spectrum, which does not drop to nothing past its last measurement).
+    pub fn at_clamped(&self, wavelength_m: f64) -> f64 {
+        let (lo, hi) = self.range_m();
+        self.at(wavelength_m.clamp(lo, hi))
+    }
+
     /// Linear interpolation, zero outside the tabulated range.
     pub fn at(&self, wavelength_m: f64) -> f64 {
         let w = &self.wavelength_m;
@@ -200,15 +207,119 @@ impl SunSpectrum {
     /// `integral over the band of QE T lambda/(h c) L_e,lambda d lambda` [e- s^-1 m^-2 sr^-1]:
     /// multiplied by (P/L) [sr m^2] it gives the signal S [e-/s].
     pub fn signal_integral(&self, qe: &SpectralTable, transmittance: &SpectralTable) -> f64 {
+        self.reflected_signal_integral(qe, transmittance, None)
+    }
+
+    /// [`SunSpectrum::signal_integral`] for light reflected by a surface of spectral shape
+    /// `reflectance` (grey when `None`): the band's factor of Eq. 45 with the BRDF's spectral
+    /// dependence inside the integral, `integral of QE T lambda/(h c) r(lambda) L_e,lambda`,
+    /// `r` relative to the wavelength the albedo holds at ([`Reflectance::relative`]).
+    pub fn reflected_signal_integral(
+        &self,
+        qe: &SpectralTable,
+        transmittance: &SpectralTable,
+        reflectance: Option<&Reflectance>,
+    ) -> f64 {
         let (lo, hi) = qe.range_m();
         let mut knots: Vec<f64> = qe.wavelengths_m().to_vec();
         knots.extend_from_slice(transmittance.wavelengths_m());
+        if let Some(r) = reflectance {
+            knots.extend_from_slice(r.table.wavelengths_m());
+        }
+        let r = |l: f64| reflectance.map_or(1.0, |r| r.relative(l));
         integrate(
-            |l| qe.at(l) * transmittance.at(l) * l / (H * C) * self.radiance(l),
+            |l| qe.at(l) * transmittance.at(l) * l / (H * C) * self.radiance(l) * r(l),
             lo,
             hi,
             &knots,
         )
+    }
+
+    /// The Sun's radiance integrated over `band_m` (the whole spectrum when `None`) after
+    /// reflection by a surface of spectral shape `reflectance` [W m^-2 sr^-1]: multiplied by
+    /// (P/L) it is the collected power (Eq. 9).
+    pub fn reflected_radiance_integral(
+        &self,
+        band_m: Option<(f64, f64)>,
+        reflectance: Option<&Reflectance>,
+    ) -> f64 {
+        let Some(r) = reflectance else {
+            return self.radiance_integral(band_m);
+        };
+        let (lo, hi) = band_m.unwrap_or_else(|| match self {
+            SunSpectrum::Tabulated { irradiance, .. } => irradiance.range_m(),
+            // The black body beyond [50 nm, 200 um] holds under 1e-4 of its power.
+            SunSpectrum::BlackBody { .. } => (50e-9, 200e-6),
+        });
+        let mut knots = r.table.wavelengths_m().to_vec();
+        if let SunSpectrum::Tabulated { irradiance, .. } = self {
+            knots.extend_from_slice(irradiance.wavelengths_m());
+        }
+        integrate(|l| self.radiance(l) * r.relative(l), lo, hi, &knots)
+    }
+}
+
+/// A surface's spectral reflectance shape: the albedo (or the albedo map) holds at
+/// `reference_m`, and at any other wavelength is multiplied by `table(lambda) /
+/// table(reference)` (the table's end values held beyond its range). It moves the BRDF's
+/// spectral dependence, which the (P/L) of Eq. 9 leaves out, into each band's integral
+/// (Eq. 45 per band), so one render serves every band.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Reflectance {
+    /// Where the data came from, for headers and notes.
+    pub name: String,
+    pub table: SpectralTable,
+    pub reference_m: f64,
+}
+
+impl Reflectance {
+    /// Builds the shape; the table must be positive at `reference_m`.
+    pub fn new(name: &str, table: SpectralTable, reference_m: f64) -> Result<Self, TableError> {
+        let at = table.at_clamped(reference_m);
+        if !(reference_m.is_finite() && reference_m > 0.0 && at > 0.0) {
+            return Err(TableError::OutOfRange {
+                index: 0,
+                value: at,
+                min: f64::MIN_POSITIVE,
+                max: f64::INFINITY,
+            });
+        }
+        Ok(Reflectance {
+            name: name.into(),
+            table,
+            reference_m,
+        })
+    }
+
+    /// `r(lambda) / r(reference)` [-].
+    #[inline]
+    pub fn relative(&self, wavelength_m: f64) -> f64 {
+        self.table.at_clamped(wavelength_m) / self.table.at_clamped(self.reference_m)
+    }
+
+    /// The average Moon's spectrum: its equivalent albedo at 6 deg phase from Earth-based
+    /// absolute photometry, 350-2500 nm (Velikodsky, Opanasenko, Akimov et al. 2011, "New
+    /// Earth-based absolute photometry of the Moon", Icarus 214, 30-45: the "average Moon"
+    /// column, every point to 1100 nm, then every 100 nm). Only its shape is used.
+    pub fn moon(reference_m: f64) -> Result<Self, TableError> {
+        const NM: [f64; 41] = [
+            350., 373., 397., 420., 443., 467., 490., 513., 537., 560., 583., 607., 630., 653.,
+            677., 700., 723., 747., 770., 793., 800., 850., 900., 950., 1000., 1050., 1100., 1200.,
+            1300., 1400., 1500., 1600., 1700., 1800., 1900., 2000., 2100., 2200., 2300., 2400.,
+            2500.,
+        ];
+        const A_EQ: [f64; 41] = [
+            0.0728, 0.0803, 0.0873, 0.0931, 0.0988, 0.1049, 0.1106, 0.1162, 0.1219, 0.1275, 0.1322,
+            0.1366, 0.1411, 0.1452, 0.1492, 0.1531, 0.1569, 0.1602, 0.1629, 0.1648, 0.1660, 0.1688,
+            0.1718, 0.1764, 0.1826, 0.1900, 0.1981, 0.2136, 0.2273, 0.2390, 0.2523, 0.2613, 0.2686,
+            0.2745, 0.2810, 0.2880, 0.2964, 0.3068, 0.3192, 0.3342, 0.3466,
+        ];
+        let table = SpectralTable::new(
+            NM.iter().map(|n| n * 1e-9).collect(),
+            A_EQ.to_vec(),
+            (0.0, 1.0),
+        )?;
+        Reflectance::new("moon (Velikodsky et al. 2011)", table, reference_m)
     }
 }
 

@@ -259,9 +259,12 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// `k` of Eq. 60 [W m^-2 per e-/s]: `h c / (A_cam max(QE T lambda))`.
+/// `k` of Eq. 60 [W m^-2 per e-/s]: `h c / (A_cam max(QE T lambda))`, of the camera's
+/// (first) band: a grey screen stimulates a monochrome camera (the configuration refuses a
+/// multi-band camera with a stimulator).
 pub fn feff_factor(detector: &Detector, intrinsics: &Intrinsics) -> f64 {
-    H * C / (intrinsics.aperture_area_m2() * max_qe_t_lambda(&detector.qe, &detector.transmittance))
+    let b = detector.band();
+    H * C / (intrinsics.aperture_area_m2() * max_qe_t_lambda(&b.qe, &b.transmittance))
 }
 
 /// F_eff per pixel [W/m^2] from the signal per pixel [e-/s] (Eq. 58), in parallel.
@@ -307,8 +310,14 @@ mod tests {
             offset_dn: 0.0,
             bit_depth: 12,
             saved_bits: 12,
-            qe,
-            transmittance: t,
+            bands: vec![crate::detector::Band {
+                name: "mono".into(),
+                qe,
+                transmittance: t,
+                psf_sigma_px: None,
+                distortion: None,
+            }],
+            layout: Default::default(),
             psf_sigma_px: 0.0,
             noise: Default::default(),
             seed: 0,

@@ -130,7 +130,7 @@ pub fn rendered_signal(cfg: &Config) -> Vec<f64> {
         .unwrap()
         .render(&cfg.scene, &cfg.pose, &cfg.settings)
         .unwrap();
-    det.signal(&frame.pl, det.signal_factor(&cfg.scene.sun))
+    det.signal(&frame.pl, cfg.scene.signal_factor())
 }
 
 /// A daemon started in this process on free loopback ports, with `config_text` (a scene with

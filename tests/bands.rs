@@ -1,0 +1,275 @@
+//! Multi-band cameras (issue 17): the geometry is rendered once and every band's signal is
+//! that (P/L) times the band's own integral of Eq. 45; a Bayer sensor records each pixel's
+//! band; `power.fits` and `signal.fits` are cubes, `image.png` is RGB (or the raw mosaic).
+
+mod common;
+
+use common::{SceneSpec, refusal};
+use optistim::app::products;
+use optistim::config::{self, Config};
+use optistim::radiometry::{C, H, K_B};
+use optistim::render::Renderer;
+
+const MONO_QE: &str = "qe = { wavelength_nm = [400, 700, 1000], value = [0.5, 0.6, 0.2] }";
+
+/// Three flat bands: R 600-700 nm (QE 0.4), G 500-600 (0.6), B 400-500 (0.5).
+const RGB: [(&str, f64, f64, f64); 3] = [
+    ("R", 600.0, 700.0, 0.4),
+    ("G", 500.0, 600.0, 0.6),
+    ("B", 400.0, 500.0, 0.5),
+];
+
+/// The scene of `spec` with the camera's one QE curve replaced by `bands` (and `extra`
+/// camera keys, e.g. the mosaic).
+fn with_bands(spec: &SceneSpec, extra: &str, bands: &[(&str, f64, f64, f64)]) -> String {
+    let tables: String = bands
+        .iter()
+        .map(|(name, lo, hi, qe)| {
+            format!(
+                "\n[[camera.band]]\nname = \"{name}\"\n\
+                 qe = {{ wavelength_nm = [{lo}, {hi}], value = [{qe}, {qe}] }}\n"
+            )
+        })
+        .collect();
+    let text = spec.toml();
+    assert!(text.contains(MONO_QE));
+    text.replace(MONO_QE, &format!("{extra}\n{tables}"))
+}
+
+fn parse(text: &str) -> Config {
+    config::parse(text, "<test>").unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// `G(a) = integral from a to infinity of x^2 / (e^x - 1) dx = sum_n e^(-n a) (a^2/n + 2a/n^2
+/// + 2/n^3)`: the photon count of a black body above `x = h c / (lambda k T)`.
+fn g(a: f64) -> f64 {
+    (1..200)
+        .map(|n| {
+            let n = n as f64;
+            (-n * a).exp() * (a * a / n + 2.0 * a / (n * n) + 2.0 / (n * n * n))
+        })
+        .sum()
+}
+
+/// The factor of Eq. 45 of a flat band `[lo, hi]` nm of QE `qe` (transmittance 1) under a
+/// black body of `t_k` scaled by `scale`, in closed form: the photon radiance
+/// `2 c (k T / h c)^3 [G(x_hi) - G(x_lo)]`.
+fn analytic_factor(lo_nm: f64, hi_nm: f64, qe: f64, t_k: f64, scale: f64) -> f64 {
+    let x = |nm: f64| H * C / (nm * 1e-9 * K_B * t_k);
+    scale * qe * 2.0 * C * (K_B * t_k / (H * C)).powi(3) * (g(x(hi_nm)) - g(x(lo_nm)))
+}
+
+#[test]
+fn every_band_is_the_one_render_times_its_own_band_integral() {
+    let spec = SceneSpec {
+        resolution: [96, 96],
+        ..Default::default()
+    };
+    let cfg = parse(&with_bands(&spec, "", &RGB));
+    let det = &cfg.scene.camera.detector;
+    assert_eq!(det.bands.len(), 3);
+    let mut r = Renderer::new(0).unwrap();
+    let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
+    let n = frame.width * frame.height;
+    let (signal, dn) = cfg.scene.record(&frame.pl, (frame.width, frame.height), 0);
+    assert_eq!(signal.len(), 3 * n);
+    assert_eq!(dn.len(), 3 * n, "a full image per band");
+    let factors = cfg.scene.band_factors();
+    for (b, &(name, lo, hi, qe)) in RGB.iter().enumerate() {
+        let want = analytic_factor(lo, hi, qe, 5782.0, 1.0);
+        let rel = factors[b] / want - 1.0;
+        assert!(
+            rel.abs() < 1e-9,
+            "{name}: {} vs {want}: {rel:e}",
+            factors[b]
+        );
+        // Every pixel of the band is the one (P/L) image times its factor.
+        let plane = &signal[b * n..(b + 1) * n];
+        for (s, pl) in plane.iter().zip(&frame.pl) {
+            assert!((s - pl * want).abs() <= 1e-9 * (pl * want).abs(), "{name}");
+        }
+    }
+    // The ratio of two bands' total signals is the ratio of their integrals.
+    let total = |b: usize| signal[b * n..(b + 1) * n].iter().sum::<f64>();
+    let ratio = total(0) / total(2);
+    let want = analytic_factor(600.0, 700.0, 0.4, 5782.0, 1.0)
+        / analytic_factor(400.0, 500.0, 0.5, 5782.0, 1.0);
+    assert!((ratio / want - 1.0).abs() < 1e-9, "{ratio} vs {want}");
+}
+
+#[test]
+fn a_bayer_sensor_records_each_pixels_own_band() {
+    let spec = SceneSpec {
+        resolution: [64, 48],
+        camera_m: [4.0 * common::R_MOON, 0.0, 0.0],
+        ..Default::default()
+    };
+    let planes = parse(&with_bands(&spec, "", &RGB));
+    let mut r = Renderer::new(0).unwrap();
+    let frame = r
+        .render(&planes.scene, &planes.pose, &planes.settings)
+        .unwrap();
+    let size = (frame.width, frame.height);
+    let n = size.0 * size.1;
+    let (_, full) = planes.scene.record(&frame.pl, size, 3);
+    for (order, cells) in [
+        ("RGGB", [0, 1, 1, 2]),
+        ("BGGR", [2, 1, 1, 0]),
+        ("GRBG", [1, 0, 2, 1]),
+        ("GBRG", [1, 2, 0, 1]),
+    ] {
+        let cfg = parse(&with_bands(&spec, &format!("mosaic = \"{order}\""), &RGB));
+        let (signal, mosaic) = cfg.scene.record(&frame.pl, size, 3);
+        assert_eq!(signal.len(), 3 * n, "{order}: every band's signal");
+        assert_eq!(mosaic.len(), n, "{order}: one raw mosaic");
+        let mut lit = [0usize; 3];
+        for y in 0..size.1 {
+            for x in 0..size.0 {
+                let b = cells[(y % 2) * 2 + x % 2];
+                let i = y * size.0 + x;
+                // Noiseless: the mosaic's pixel is its band's full image's.
+                assert_eq!(mosaic[i], full[b * n + i], "{order} at ({x}, {y})");
+                lit[b] += (mosaic[i] > 0) as usize;
+            }
+        }
+        assert!(lit.iter().all(|&k| k > 50), "{order}: {lit:?}");
+    }
+}
+
+#[test]
+fn cubes_and_colour_images_carry_every_band() {
+    let spec = SceneSpec {
+        resolution: [40, 30],
+        camera_m: [4.0 * common::R_MOON, 0.0, 0.0],
+        ..Default::default()
+    };
+    let cfg = parse(&with_bands(&spec, "", &RGB));
+    let mut r = Renderer::new(0).unwrap();
+    let (meta, images) = products::make(&cfg, None, &cfg.pose, &mut r).unwrap();
+    let files = products::encode(&cfg, &meta, images.view()).unwrap();
+    let file = |name: &str| &files.iter().find(|(n, _)| *n == name).unwrap().1;
+    let header = |bytes: &[u8]| String::from_utf8_lossy(&bytes[..2880 * 2]).to_string();
+    let card = |h: &str, key: &str| {
+        h.as_bytes()
+            .chunks(80)
+            .map(|c| String::from_utf8_lossy(c).to_string())
+            .find(|c| c.starts_with(&format!("{key:<8}=")))
+            .unwrap_or_else(|| panic!("no {key}"))
+    };
+    for name in ["power.fits", "signal.fits"] {
+        let h = header(file(name));
+        assert!(card(&h, "NAXIS").contains(" 3 "), "{name}");
+        assert!(card(&h, "NAXIS3").contains(" 3 "), "{name}");
+        assert!(card(&h, "BAND1").contains("'R"), "{name}");
+        assert!(card(&h, "BAND3").contains("'B"), "{name}");
+        assert!(card(&h, "BAND2LO").contains("5.0000"), "{name}");
+        assert!(card(&h, "BAND2HI").contains("6.0000"), "{name}");
+        // Three planes of 40 x 30 doubles after the header, padded to whole blocks.
+        let len = file(name).len();
+        assert!(len >= 2880 + 3 * 40 * 30 * 8 && len % 2880 == 0, "{name}");
+    }
+    // The depth stays one image.
+    assert!(card(&header(file("depth.fits")), "NAXIS").contains(" 2 "));
+    // image.png: RGB, each channel its band's DN.
+    let png = file("image.png");
+    let decoder = png::Decoder::new(std::io::Cursor::new(png.as_slice()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb);
+    assert_eq!((info.width, info.height), (40, 30));
+    let n = 40 * 30;
+    for i in 0..n {
+        for b in 0..3 {
+            let v = u16::from_be_bytes([buf[6 * i + 2 * b], buf[6 * i + 2 * b + 1]]);
+            assert_eq!(v, images.dn[b * n + i]);
+        }
+    }
+    // A Bayer camera's image.png is the raw mosaic, its pattern in the metadata.
+    let bayer = parse(&with_bands(&spec, "mosaic = \"BGGR\"", &RGB));
+    let (meta, images) = products::make(&bayer, None, &bayer.pose, &mut r).unwrap();
+    let files = products::encode(&bayer, &meta, images.view()).unwrap();
+    let png = &files.iter().find(|(n, _)| *n == "image.png").unwrap().1;
+    let reader = png::Decoder::new(std::io::Cursor::new(png.as_slice()))
+        .read_info()
+        .unwrap();
+    assert_eq!(reader.info().color_type, png::ColorType::Grayscale);
+    let text: Vec<(String, String)> = reader
+        .info()
+        .uncompressed_latin1_text
+        .iter()
+        .map(|t| (t.keyword.clone(), t.text.clone()))
+        .collect();
+    assert!(
+        text.contains(&("bayer_pattern".into(), "BGGR".into())),
+        "{text:?}"
+    );
+    let signal = &files.iter().find(|(n, _)| *n == "signal.fits").unwrap().1;
+    assert!(card(&header(signal), "BAYERPAT").contains("'BGGR"));
+}
+
+#[test]
+fn bad_bands_are_refused_by_name() {
+    let spec = SceneSpec::default();
+    let both = spec.toml().replace(
+        MONO_QE,
+        &format!("{MONO_QE}\n[[camera.band]]\nname = \"R\"\n{MONO_QE}\n"),
+    );
+    assert_eq!(refusal(&both, "<t>").0, "camera.qe");
+    let two = with_bands(&spec, "mosaic = \"RGGB\"", &RGB[..2]);
+    assert_eq!(refusal(&two, "<t>").0, "camera.mosaic");
+    let order = with_bands(&spec, "mosaic = \"RGBG\"", &RGB);
+    assert_eq!(
+        refusal(&order, "<t>"),
+        ("camera.mosaic".into(), "\"RGBG\"".into())
+    );
+    let same = with_bands(&spec, "", &[RGB[0], RGB[0]]);
+    assert_eq!(refusal(&same, "<t>").0, "camera.band[1].name");
+    let spectrum =
+        spec.toml_with_body("reflectance_spectrum = { table = \"mars\", reference_nm = 550 }");
+    assert_eq!(
+        refusal(&spectrum, "<t>").0,
+        "body.reflectance_spectrum.table"
+    );
+    let reference =
+        spec.toml_with_body("reflectance_spectrum = { table = \"moon\", reference_nm = -5 }");
+    assert_eq!(
+        refusal(&reference, "<t>").0,
+        "body.reflectance_spectrum.reference_nm"
+    );
+}
+
+/// A reflectance spectrum moves each band's factor by the spectrum's weight in that band,
+/// relative to its reference: a flat band around the reference is unchanged, and a linear
+/// spectrum over a flat band is its mean over the band's photons.
+#[test]
+fn a_reflectance_spectrum_weights_each_band() {
+    let spec = SceneSpec::default();
+    let body = "reflectance_spectrum = { wavelength_nm = [400, 700], value = [0.5, 1.1], \
+                reference_nm = 550 }";
+    let grey = parse(&with_bands(&spec, "", &RGB));
+    let red = parse(&with_bands(&SceneSpec { body, ..spec }, "", &RGB));
+    let (kg, kr) = (grey.scene.band_factors(), red.scene.band_factors());
+    // r(lambda) / r(550) = (0.5 + 0.6 (lambda - 400) / 300) / 0.8: the B band (400-500 nm)
+    // is dimmer, the R band (600-700) brighter.
+    assert!(kr[2] / kg[2] < 0.8 && kr[0] / kg[0] > 1.2, "{kr:?} {kg:?}");
+    // Photon-weighted: sum over the band of r N_lambda against sum of N_lambda, by the
+    // midpoint rule on 1 nm steps (1e-6 is far below the spectrum's own effect).
+    let planck_photons = |nm: f64| {
+        let l = nm * 1e-9;
+        2.0 * C / l.powi(4) / ((H * C / (l * K_B * 5782.0)).exp() - 1.0)
+    };
+    for (b, &(name, lo, hi, _)) in RGB.iter().enumerate() {
+        let (mut num, mut den) = (0.0, 0.0);
+        let steps = (hi - lo) as usize * 10;
+        for k in 0..steps {
+            let nm = lo + (k as f64 + 0.5) * (hi - lo) / steps as f64;
+            let r = (0.5 + 0.6 * (nm - 400.0) / 300.0) / 0.8;
+            num += r * planck_photons(nm);
+            den += planck_photons(nm);
+        }
+        let want = num / den;
+        let got = kr[b] / kg[b];
+        assert!((got / want - 1.0).abs() < 1e-6, "{name}: {got} vs {want}");
+    }
+}

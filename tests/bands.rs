@@ -273,3 +273,89 @@ fn a_reflectance_spectrum_weights_each_band() {
         assert!((got / want - 1.0).abs() < 1e-6, "{name}: {got} vs {want}");
     }
 }
+
+/// Lateral chromatic aberration (Sec. 6.1.2): a band with Brown coefficients of its own has
+/// the same cloud projected through them before gridding. A small full Moon near the
+/// image's corner lands, in each band, where the band's own distortion puts its centre, and
+/// each band keeps the cloud's energy. Longitudinal aberration: a band's own PSF blurs that
+/// band's DN only, keeping its signal.
+#[test]
+fn chromatic_aberrations_move_and_blur_each_band_on_its_own() {
+    let spec = SceneSpec {
+        resolution: [200, 200],
+        focal_m: 0.01,
+        camera_m: [800.0 * common::R_MOON, 0.0, 0.0],
+        ..Default::default()
+    };
+    let bands = "\n[[camera.band]]\nname = \"R\"\n\
+                 qe = { wavelength_nm = [600, 700], value = [0.4, 0.4] }\n\
+                 distortion = { k1 = 2.0 }\n\
+                 \n[[camera.band]]\nname = \"G\"\n\
+                 qe = { wavelength_nm = [500, 600], value = [0.6, 0.6] }\n\
+                 psf_sigma_px = 1.5\n\
+                 \n[[camera.band]]\nname = \"B\"\n\
+                 qe = { wavelength_nm = [400, 500], value = [0.5, 0.5] }\n\
+                 distortion = { k1 = -2.0 }\n";
+    let mut cfg = parse(&spec.toml().replace(MONO_QE, bands));
+    // Turn the camera so that the Moon sits at 80 % of the half field along both axes.
+    let intr = cfg.scene.camera.intrinsics.clone();
+    let half = 100.0 / intr.focal_px().0;
+    let t = glam::DVec3::new(0.8 * half, 0.8 * half, 1.0).normalize();
+    cfg.pose.body_from_camera =
+        cfg.pose.body_from_camera * glam::DQuat::from_rotation_arc(t, glam::DVec3::Z);
+    let mut r = Renderer::new(0).unwrap();
+    let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
+    assert_eq!(frame.band_pl.len(), 2, "R and B have their own distortion");
+    let (w, h) = (frame.width, frame.height);
+    let centroid = |img: &[f64]| {
+        let (mut su, mut sv, mut s) = (0.0, 0.0, 0.0);
+        for (i, &x) in img.iter().enumerate() {
+            su += x * ((i % w) as f64 + 0.5);
+            sv += x * ((i / w) as f64 + 0.5);
+            s += x;
+        }
+        ([su / s, sv / s], s)
+    };
+    let centre_cam = cfg.pose.body_from_camera.inverse() * -cfg.pose.camera_position_m;
+    let mut seen = Vec::new();
+    for (b, k1) in [(0, 2.0), (1, 0.0), (2, -2.0)] {
+        let mut own = intr.clone();
+        own.distortion.k1 = k1;
+        let want = own.project(centre_cam.x, centre_cam.y, centre_cam.z);
+        let (got, total) = centroid(frame.band(b));
+        let miss = ((got[0] - want[0]).powi(2) + (got[1] - want[1]).powi(2)).sqrt();
+        assert!(
+            miss < 0.02,
+            "band {b}: centroid {got:?}, its distortion puts it at {want:?}"
+        );
+        let energy = total / frame.stats.total_pl_points - 1.0;
+        assert!(energy.abs() < 1e-9, "band {b}: energy {energy:e}");
+        seen.push(got);
+    }
+    // The bands fall apart by more than a pixel: the test would see a missing distortion.
+    let spread = ((seen[0][0] - seen[2][0]).powi(2) + (seen[0][1] - seen[2][1]).powi(2)).sqrt();
+    assert!(spread > 1.5, "{spread}");
+
+    // Longitudinal: G's own PSF blurs G's DN and keeps G's signal sharp and whole.
+    let (signal, dn) = products::record(&cfg, &frame, 0);
+    let n = w * h;
+    let k = cfg.scene.band_factors();
+    for (s, pl) in signal[n..2 * n].iter().zip(&frame.pl) {
+        assert!((s - pl * k[1]).abs() <= 1e-12 * s.abs().max(1e-300));
+    }
+    let mut sharp = cfg.clone();
+    sharp.scene.camera.detector.bands[1].psf_sigma_px = None;
+    let (_, dn_sharp) = products::record(&sharp, &frame, 0);
+    let peak = |d: &[u16]| d.iter().copied().max().unwrap();
+    let sum = |d: &[u16]| d.iter().map(|&x| x as f64).sum::<f64>();
+    let (g, g_sharp) = (&dn[n..2 * n], &dn_sharp[n..2 * n]);
+    assert!(peak(g) < peak(g_sharp), "{} vs {}", peak(g), peak(g_sharp));
+    assert!(
+        (sum(g) / sum(g_sharp) - 1.0).abs() < 0.01,
+        "{} vs {}",
+        sum(g),
+        sum(g_sharp)
+    );
+    // R and B were not touched by G's PSF.
+    assert_eq!(&dn[..n], &dn_sharp[..n]);
+}

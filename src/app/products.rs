@@ -123,10 +123,11 @@ pub fn detect(
     let band_factors = scene.band_factors();
     let power_w: Vec<f64> = band_radiance_w
         .iter()
-        .flat_map(|r| frame.pl.iter().map(move |x| x * r))
+        .enumerate()
+        .flat_map(|(b, r)| frame.band(b).iter().map(move |x| x * r))
         .collect();
     let size = (frame.width, frame.height);
-    let (signal_e_per_s, dn) = det.image(|_| &frame.pl, size, &band_factors, pose.frame_id);
+    let (signal_e_per_s, dn) = det.image(|b| frame.band(b), size, &band_factors, pose.frame_id);
     let depth_m = frame
         .depth_m
         .unwrap_or_else(|| vec![f64::NAN; frame.width * frame.height]);
@@ -148,6 +149,19 @@ pub fn detect(
         dn,
     };
     (meta, images)
+}
+
+/// A rendered frame through the camera: every band's signal [e-/s] (from its own image under
+/// a distortion of its own) and the DN the camera hands out.
+pub fn record(
+    config: &Config,
+    frame: &crate::render::Frame,
+    frame_id: u64,
+) -> (Vec<f64>, Vec<u16>) {
+    let factors = config.scene.band_factors();
+    let size = (frame.width, frame.height);
+    let det = &config.scene.camera.detector;
+    det.image(|b| frame.band(b), size, &factors, frame_id)
 }
 
 /// Per band, W per sr m^2 of (P/L) after reflection by the body: over `power_band_m` for a

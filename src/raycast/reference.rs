@@ -226,6 +226,21 @@ pub fn render(
     pose: &Pose,
     settings: &ReferenceSettings,
 ) -> Result<ReferenceFrame, RenderError> {
+    let mut r = render_camera(scene, pose, settings)?;
+    // A band with a distortion of its own: its own converged image (its error estimate is
+    // the camera's image's).
+    crate::render::with_band_distortions(scene, &mut r.frame, |s| {
+        Ok(render_camera(s, pose, settings)?.frame.pl)
+    })?;
+    Ok(r)
+}
+
+/// [`render`] through the camera's own distortion.
+fn render_camera(
+    scene: &Scene,
+    pose: &Pose,
+    settings: &ReferenceSettings,
+) -> Result<ReferenceFrame, RenderError> {
     if !(settings.tolerance.is_finite() && settings.tolerance > 0.0) {
         return Err(RenderError::BadSettings {
             field: "reference.tolerance",
@@ -355,6 +370,7 @@ pub fn render(
             width: w,
             height: h,
             pl,
+            band_pl: Vec::new(),
             depth_m: Some(depth),
             stats,
         },

@@ -248,6 +248,7 @@ pub fn render(
         height: h,
         depth_m: settings.depth.then_some(depth),
         pl,
+        band_pl: Vec::new(),
         stats,
     })
 }

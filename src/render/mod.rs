@@ -107,9 +107,22 @@ pub struct Frame {
     pub height: usize,
     /// `(P/L)` per pixel [sr m^2], row-major from the top-left.
     pub pl: Vec<f64>,
+    /// The `(P/L)` images of the camera's bands whose own distortion (lateral chromatic
+    /// aberration) moves them, by band index; every other band sees `pl` ([`Frame::band`]).
+    pub band_pl: Vec<(usize, Vec<f64>)>,
     /// Range to the surface per pixel [m], NaN where empty (when `settings.depth`).
     pub depth_m: Option<Vec<f64>>,
     pub stats: FrameStats,
+}
+
+impl Frame {
+    /// The `(P/L)` image band `b` sees: its own under a distortion of its own, else `pl`.
+    pub fn band(&self, b: usize) -> &[f64] {
+        self.band_pl
+            .iter()
+            .find(|(k, _)| *k == b)
+            .map_or(&self.pl[..], |(_, img)| &img[..])
+    }
 }
 
 /// Per-frame buffers, cleared and reused rather than reallocated.
@@ -182,9 +195,13 @@ impl Renderer {
         // Meshes have no quadrangles: the ray caster renders them, into the same frame.
         if !scene.others.is_empty() && !matches!(scene.body.shape, crate::body::Shape::Mesh(_)) {
             // Several bodies: the ray caster composes them by depth.
-            return self
-                .pool
-                .install(|| crate::raycast::sampled::render(scene, pose, settings, None));
+            return self.pool.install(|| {
+                let mut frame = crate::raycast::sampled::render(scene, pose, settings, None)?;
+                with_band_distortions(scene, &mut frame, |s| {
+                    Ok(crate::raycast::sampled::render(s, pose, settings, None)?.pl)
+                })?;
+                Ok(frame)
+            });
         }
         if let crate::body::Shape::Mesh(mesh) = &scene.body.shape {
             use std::sync::Arc;
@@ -212,12 +229,12 @@ impl Renderer {
                     let direct = crate::irradiance::direct(mesh, pose.sun_position_m);
                     (crate::irradiance::scattered(&ff, &direct, rho, orders), rho)
                 });
-                crate::raycast::sampled::render(
-                    scene,
-                    pose,
-                    settings,
-                    scattered.as_ref().map(|(r, rho)| (&r[..], *rho)),
-                )
+                let scattered = scattered.as_ref().map(|(r, rho)| (&r[..], *rho));
+                let mut frame = crate::raycast::sampled::render(scene, pose, settings, scattered)?;
+                with_band_distortions(scene, &mut frame, |s| {
+                    Ok(crate::raycast::sampled::render(s, pose, settings, scattered)?.pl)
+                })?;
+                Ok(frame)
             });
         }
         let method = Method::resolve(settings.integration, &scene.body)?;
@@ -226,6 +243,27 @@ impl Renderer {
         self.pool
             .install(|| render_in_pool(scene, pose, settings, method, threads, buf))
     }
+}
+
+/// For the renderers that cast rays through the camera (meshes, several bodies, the
+/// reference), which have no cloud to grid again: each band with a distortion of its own
+/// (lateral chromatic aberration) gets the image of `render` through a copy of the scene
+/// whose camera has that distortion, in `frame.band_pl`. A full render per such band.
+pub(crate) fn with_band_distortions(
+    scene: &Scene,
+    frame: &mut Frame,
+    mut render: impl FnMut(&Scene) -> Result<Vec<f64>, RenderError>,
+) -> Result<(), RenderError> {
+    let intr = &scene.camera.intrinsics;
+    for (b, band) in scene.camera.detector.bands.iter().enumerate() {
+        let Some(d) = band.distortion.filter(|d| *d != intr.distortion) else {
+            continue;
+        };
+        let mut own = scene.clone();
+        own.camera.intrinsics.distortion = d;
+        frame.band_pl.push((b, render(&own)?));
+    }
+    Ok(())
 }
 
 pub(crate) fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
@@ -355,7 +393,6 @@ fn render_in_pool(
     let t_total = Instant::now();
     let intr = &scene.camera.intrinsics;
     let (width, height) = (intr.width_px as usize, intr.height_px as usize);
-    let m = settings.supersampling as usize;
     let view = View::new(
         intr,
         &scene.body.shape,
@@ -399,6 +436,7 @@ fn render_in_pool(
     t.bounding = ms(t0);
 
     let mut pl_image = vec![0.0; width * height];
+    let mut band_pl = Vec::new();
     if let Some(bounds) = bounds {
         let t0 = Instant::now();
         let plan = sampling::plan(&view, &bounds, settings)?;
@@ -444,39 +482,32 @@ fn render_in_pool(
             });
         }
 
-        let t0 = Instant::now();
-        projection::project_midpoints(&view, &trig, &buf.keep, &mut buf.mids);
-        if settings.gridding.needs_corners() {
-            projection::project_vertices(&view, &trig, &mut buf.verts);
-        }
-        t.projection = ms(t0);
-
-        let t0 = Instant::now();
-        let fine = grid(
-            settings.gridding,
-            &trig,
-            buf,
-            width * m,
-            height * m,
-            total,
-            threads,
-        );
-        t.gridding = ms(t0);
-
-        let t0 = Instant::now();
-        pl_image = if m == 1 && settings.antialias_sigma_px == 0.0 {
-            fine
-        } else {
-            reconstruction::reconstruct(
-                &fine,
-                width,
-                height,
-                m,
-                settings.reconstruction,
-                settings.antialias_sigma_px,
-            )
+        // The camera's image, then one per band whose own distortion (lateral chromatic
+        // aberration, Sec. 6.1.2) moves the same cloud elsewhere before gridding.
+        let mut to_image = |view: &View, t: &mut StageTimings| {
+            image_from_cloud(view, &trig, settings, total, threads, buf, t)
         };
-        t.reconstruction = ms(t0);
+        pl_image = to_image(&view, &mut t);
+        for (b, band) in scene.camera.detector.bands.iter().enumerate() {
+            let Some(d) = band.distortion.filter(|d| *d != intr.distortion) else {
+                continue;
+            };
+            let intr_b = crate::camera::Intrinsics {
+                distortion: d,
+                ..intr.clone()
+            };
+            let view_b = View::new(
+                &intr_b,
+                &scene.body.shape,
+                scene.body.relief.as_ref(),
+                settings.self_shadowing,
+                pose,
+                settings.supersampling,
+                settings.fov,
+            );
+            let img = to_image(&view_b, &mut t);
+            band_pl.push((b, img));
+        }
     }
     stats.total_pl_gridded = pl_image.iter().sum();
     if !stats.total_pl_gridded.is_finite() {
@@ -491,6 +522,15 @@ fn render_in_pool(
         let relief = scene.body.relief.as_ref();
         let shape = &scene.body.shape;
         footprint::apply(intr, shape, relief, &brdf, a, pose, &mut pl_image);
+        for (b, img) in &mut band_pl {
+            let intr_b = crate::camera::Intrinsics {
+                distortion: scene.camera.detector.bands[*b]
+                    .distortion
+                    .unwrap_or_default(),
+                ..intr.clone()
+            };
+            footprint::apply(&intr_b, shape, relief, &brdf, a, pose, img);
+        }
         stats.total_pl_image = pl_image.iter().sum();
         t.footprint = ms(t0);
         if !stats.total_pl_image.is_finite() {
@@ -513,9 +553,60 @@ fn render_in_pool(
         width,
         height,
         pl: pl_image,
+        band_pl,
         depth_m,
         stats,
     })
+}
+
+/// The cloud's image through `view`: projection of the midpoints (and the vertices, for
+/// kernels that need them), gridding, reconstruction; the stages' times added to `t`.
+fn image_from_cloud(
+    view: &View,
+    trig: &GridTrig,
+    settings: &Settings,
+    total: f64,
+    threads: usize,
+    buf: &mut Buffers,
+    t: &mut StageTimings,
+) -> Vec<f64> {
+    let intr = view.intrinsics;
+    let (width, height) = (intr.width_px as usize, intr.height_px as usize);
+    let m = settings.supersampling as usize;
+    let t0 = Instant::now();
+    projection::project_midpoints(view, trig, &buf.keep, &mut buf.mids);
+    if settings.gridding.needs_corners() {
+        projection::project_vertices(view, trig, &mut buf.verts);
+    }
+    t.projection += ms(t0);
+
+    let t0 = Instant::now();
+    let fine = grid(
+        settings.gridding,
+        trig,
+        buf,
+        width * m,
+        height * m,
+        total,
+        threads,
+    );
+    t.gridding += ms(t0);
+
+    let t0 = Instant::now();
+    let image = if m == 1 && settings.antialias_sigma_px == 0.0 {
+        fine
+    } else {
+        reconstruction::reconstruct(
+            &fine,
+            width,
+            height,
+            m,
+            settings.reconstruction,
+            settings.antialias_sigma_px,
+        )
+    };
+    t.reconstruction += ms(t0);
+    image
 }
 
 /// The density slopes of [`Gridding::PolygonLinear`]: for each interior quadrangle, the

@@ -79,8 +79,8 @@ pub fn run(
     let mut renderer = Renderer::new(config.settings.threads)?;
     let planner = config.planner();
     let det = &config.scene.camera.detector;
-    let k = config.scene.signal_factor();
-    let mut dn = Vec::new();
+    // Every band's factor of Eq. 45, once: the bands cost a multiplication and an exposure.
+    let factors = config.scene.band_factors();
     let (mut times, mut points) = (Vec::with_capacity(n), Vec::with_capacity(n));
     let mut surface_samples_total = 0;
     let mut stage_sum = serde_json::Map::new();
@@ -90,8 +90,8 @@ pub fn run(
         let settings = plan.as_ref().map_or(&config.settings, |p| &p.settings);
         let frame = renderer.render(&config.scene, pose, settings)?;
         let td = Instant::now();
-        let signal = det.signal(&frame.pl, k);
-        det.expose(&signal, (frame.width, frame.height), pose.frame_id, &mut dn);
+        let size = (frame.width, frame.height);
+        let (_signal, _dn) = det.image(|b| frame.band(b), size, &factors, pose.frame_id);
         let detector_ms = td.elapsed().as_secs_f64() * 1e3;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if let serde_json::Value::Object(o) =

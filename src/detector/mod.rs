@@ -77,12 +77,13 @@ impl Bayer {
     /// The band (0 = R, 1 = G, 2 = B) pixel `(x, y)` records.
     #[inline]
     pub fn band_at(self, x: usize, y: usize) -> usize {
-        let cell = self.name().as_bytes()[(y & 1) * 2 + (x & 1)];
-        match cell {
-            b'R' => 0,
-            b'G' => 1,
-            _ => 2,
-        }
+        let cells = match self {
+            Bayer::Rggb => [0, 1, 1, 2],
+            Bayer::Bggr => [2, 1, 1, 0],
+            Bayer::Grbg => [1, 0, 2, 1],
+            Bayer::Gbrg => [1, 2, 0, 1],
+        };
+        cells[(y & 1) * 2 + (x & 1)]
     }
 }
 
@@ -161,25 +162,24 @@ impl Detector {
     /// ([`Detector::expose`]): one image per band, or the mosaic (`height x width`).
     pub fn image<'a>(
         &self,
-        pl: impl Fn(usize) -> &'a [f64],
+        pl: impl Fn(usize) -> &'a [f64] + Sync,
         size: (usize, usize),
         factors: &[f64],
         frame_id: u64,
     ) -> (Vec<f64>, Vec<u16>) {
         let n = size.0 * size.1;
+        // Appended in parallel: no zeroing of the cube first.
         let mut signal = Vec::with_capacity(n * factors.len());
         for (b, &k) in factors.iter().enumerate() {
-            signal.extend(self.signal(pl(b), k));
+            signal.par_extend(pl(b).par_iter().map(|&x| x * k));
         }
-        let mut dn = Vec::new();
+        let mut dn = vec![0; n * self.dn_planes()];
         match self.layout {
             Layout::Planes => {
-                let mut plane = Vec::new();
-                for b in 0..factors.len() {
+                for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
                     let sigma = self.band_psf_sigma_px(b);
                     let s = &signal[b * n..(b + 1) * n];
-                    self.expose_plane(s, size, frame_id, sigma, b as u64, &mut plane);
-                    dn.extend_from_slice(&plane);
+                    self.expose_into(s, size, frame_id, sigma, b as u64, out);
                 }
             }
             Layout::Bayer(order) => {
@@ -196,10 +196,9 @@ impl Detector {
                         }
                     })
                     .collect();
-                let mosaic: Vec<f64> = (0..n)
-                    .map(|i| blurred[order.band_at(i % size.0, i / size.0)][i])
-                    .collect();
-                self.expose_plane(&mosaic, size, frame_id, 0.0, 0, &mut dn);
+                let w = size.0.max(1);
+                let mosaic = |i: usize| blurred[order.band_at(i % w, i / w)][i];
+                self.expose_pixels(mosaic, frame_id, 0, &mut dn);
             }
         }
         (signal, dn)
@@ -245,16 +244,39 @@ impl Detector {
         plane: u64,
         dn_out: &mut Vec<u16>,
     ) {
-        let blurred;
-        let signal_e_per_s = if psf_sigma_px > 0.0 {
-            let s = psf_sigma_px;
-            blurred = psf::gaussian_blur(signal_e_per_s, size.0, size.1, s, psf::radius(s));
-            &blurred[..]
-        } else {
-            signal_e_per_s
-        };
         dn_out.clear();
         dn_out.resize(signal_e_per_s.len(), 0);
+        self.expose_into(signal_e_per_s, size, frame_id, psf_sigma_px, plane, dn_out);
+    }
+
+    /// [`Detector::expose_plane`] into a slice of the image's size.
+    fn expose_into(
+        &self,
+        signal_e_per_s: &[f64],
+        size: (usize, usize),
+        frame_id: u64,
+        psf_sigma_px: f64,
+        plane: u64,
+        dn_out: &mut [u16],
+    ) {
+        if psf_sigma_px > 0.0 {
+            let s = psf_sigma_px;
+            let blurred = psf::gaussian_blur(signal_e_per_s, size.0, size.1, s, psf::radius(s));
+            self.expose_pixels(|i| blurred[i], frame_id, plane, dn_out);
+        } else {
+            self.expose_pixels(|i| signal_e_per_s[i], frame_id, plane, dn_out);
+        }
+    }
+
+    /// The exposure of every pixel `i` of `dn_out`, of signal `signal(i)` [e-/s] (a Bayer
+    /// mosaic reads each pixel from its band's image without making the mosaic).
+    fn expose_pixels(
+        &self,
+        signal_e_per_s: impl Fn(usize) -> f64 + Sync,
+        frame_id: u64,
+        plane: u64,
+        dn_out: &mut [u16],
+    ) {
         let t = self.exposure_s;
         let noise = &self.noise;
         let seed = self.seed;
@@ -279,7 +301,7 @@ impl Detector {
                 let mut temporal_rng =
                     temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), c));
                 for (k, dn) in out.iter_mut().enumerate() {
-                    let mut s = signal_e_per_s[base + k];
+                    let mut s = signal_e_per_s(base + k);
                     if s == 0.0
                         && let (Some(d), Some(r)) = (&dark_dn, temporal_rng.as_mut())
                     {

@@ -8,12 +8,12 @@
 //! | module | holds |
 //! | --- | --- |
 //! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates and local east/north, ray-sphere; `bvh`: the triangle BVH (obvhs) behind rays in and hits out |
-//! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45) |
+//! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45), a surface's spectral reflectance shape (the average Moon's built in) |
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
 //! | [`body`] | the body's shape (sphere, triaxial ellipsoid, triangle mesh: OBJ / PLY / STL loaded, checked and repaired), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps, horizons computed from the DEM by azimuth |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
 //! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure, the DN response quantile by quantile |
-//! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47) |
+//! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47); a camera's bands (each its QE, transmittance, PSF and distortion: chromatic aberrations), full images per band or a Bayer mosaic |
 //! | [`scene`] | the validated Sun, body and camera, and the per-frame pose |
 //! | [`render`] | the pipeline, one module per step: view (the CSF, and the grid's space: the CSF, or an ellipsoid's parameter space), bounding, sampling, pruning, integration, projection, gridding, reconstruction, footprint (the albedo map over each pixel's footprint, `map_filter = "pixel"`) |
 //! | [`raycast`] | per-pixel ray casting, the sibling of the quadrangle pipeline: what a line of sight meets and brings back (shapes, meshes through their BVH, several bodies by depth with eclipses, a DEM met by sphere tracing that leaps over blocks by a max-height pyramid, its shadows, maps, BRDFs, a mesh's scattered light); the frame of meshes and of several bodies (`sampled`: n x n rays per pixel, more at edges; a lone mesh's first facets by exact rasterisation, `raster`, and its shadows through a grid seen from the Sun, `sun_grid`); and the converged reference of any scene by adaptive cubature over each pixel's footprint, with its own error estimate |
@@ -40,10 +40,13 @@
 //!     view (CSF) → bounding → sampling → pruning → integration → projection
 //!     → gridding (i64 fixed point) → reconstruction  ─►  Frame { (P/L) image, depth, stats }
 //!                                        │
-//!   detector: S = (P/L)·∫QE·T·λ/(hc)·L_e dλ  → electrons (+noise) → DN
+//!   detector: S_b = (P/L)_b·∫QE_b·T_b·λ/(hc)·r(λ)·L_e dλ per band b (one render; a band's
+//!             own distortion grids the same cloud again) → electrons (+noise) → DN
+//!             (a full image per band, or a Bayer mosaic)
 //!                                        │
 //!   app::products: power, signal, depth, DN and their files (the same bytes everywhere)
-//!   app::render writes power.fits, signal.fits, depth.fits, image.png and one JSON line
+//!   app::render writes power.fits, signal.fits (cubes of bands), depth.fits, image.png (grey,
+//!     RGB, or the raw mosaic) and one JSON line
 //!   app::render_trajectory: frames/NNNNNN/ + manifest (and python/: optistim.render,
 //!     optistim.dataset on Ray, the same files)
 //!

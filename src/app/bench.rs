@@ -81,6 +81,7 @@ pub fn run(
     let det = &config.scene.camera.detector;
     // Every band's factor of Eq. 45, once: the bands cost a multiplication and an exposure.
     let factors = config.scene.band_factors();
+    let (mut signal, mut dn) = (Vec::new(), Vec::new());
     let (mut times, mut points) = (Vec::with_capacity(n), Vec::with_capacity(n));
     let mut surface_samples_total = 0;
     let mut stage_sum = serde_json::Map::new();
@@ -91,7 +92,8 @@ pub fn run(
         let frame = renderer.render(&config.scene, pose, settings)?;
         let td = Instant::now();
         let size = (frame.width, frame.height);
-        let (_signal, _dn) = det.image(|b| frame.band(b), size, &factors, pose.frame_id);
+        let band = |b| frame.band(b);
+        det.image_into(band, size, &factors, pose.frame_id, &mut signal, &mut dn);
         let detector_ms = td.elapsed().as_secs_f64() * 1e3;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if let serde_json::Value::Object(o) =

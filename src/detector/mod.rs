@@ -167,13 +167,30 @@ impl Detector {
         factors: &[f64],
         frame_id: u64,
     ) -> (Vec<f64>, Vec<u16>) {
+        let (mut signal, mut dn) = (Vec::new(), Vec::new());
+        self.image_into(pl, size, factors, frame_id, &mut signal, &mut dn);
+        (signal, dn)
+    }
+
+    /// [`Detector::image`] into buffers kept from frame to frame (no allocation once they
+    /// have grown: a stream of frames, `optistim bench`).
+    pub fn image_into<'a>(
+        &self,
+        pl: impl Fn(usize) -> &'a [f64] + Sync,
+        size: (usize, usize),
+        factors: &[f64],
+        frame_id: u64,
+        signal: &mut Vec<f64>,
+        dn: &mut Vec<u16>,
+    ) {
         let n = size.0 * size.1;
         // Appended in parallel: no zeroing of the cube first.
-        let mut signal = Vec::with_capacity(n * factors.len());
+        signal.clear();
         for (b, &k) in factors.iter().enumerate() {
             signal.par_extend(pl(b).par_iter().map(|&x| x * k));
         }
-        let mut dn = vec![0; n * self.dn_planes()];
+        dn.clear();
+        dn.resize(n * self.dn_planes(), 0);
         match self.layout {
             Layout::Planes => {
                 for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
@@ -198,10 +215,9 @@ impl Detector {
                     .collect();
                 let w = size.0.max(1);
                 let mosaic = |i: usize| blurred[order.band_at(i % w, i / w)][i];
-                self.expose_pixels(mosaic, frame_id, 0, &mut dn);
+                self.expose_pixels(mosaic, frame_id, 0, dn);
             }
         }
-        (signal, dn)
     }
 
     /// The ADC's largest DN (at `bit_depth`).

@@ -21,6 +21,13 @@ pub enum PipelineError {
     Render(#[from] RenderError),
     #[error(transparent)]
     Stimulator(#[from] StimulatorError),
+    /// The daemon's chain carries one signal image: a camera of several bands has nowhere to
+    /// go until colour screens exist.
+    #[error(
+        "the camera has {0} bands: the daemon drives monochrome cameras (one band) so far; \
+         render colour with `optistim render`"
+    )]
+    Bands(usize),
 }
 
 /// Time per stage of one frame [ms].
@@ -60,6 +67,10 @@ impl FrameMaker {
     /// Loads the calibration and the simulated camera's true response of `config`'s
     /// `[stimulator]` section, when it has one.
     pub fn new(config: &Config) -> Result<FrameMaker, PipelineError> {
+        let bands = config.scene.camera.detector.bands.len();
+        if bands > 1 {
+            return Err(PipelineError::Bands(bands));
+        }
         let (stimulator, camera) = match &config.stimulator {
             Some(st) => {
                 let intr = &config.scene.camera.intrinsics;

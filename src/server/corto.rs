@@ -191,8 +191,7 @@ pub fn image_png(
     let i = &config.scene.camera.intrinsics;
     let (w, h) = (i.width_px as usize, i.height_px as usize);
     let (_, dn) = config.scene.record(pl, (w, h), pose.frame_id);
-    // A three-band camera's image is RGB (`io::encode_png_planes`).
-    crate::io::encode_png_planes(w, h, &dn, det.saved_bits, &[]).map_err(|e| e.to_string())
+    crate::io::encode_png_gray(w, h, &dn, det.saved_bits).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

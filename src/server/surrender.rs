@@ -719,30 +719,16 @@ impl Session {
                 "image_data"
             }
             "getImageRGBA8" => {
-                // A three-band camera's R, G, B planes in colour; else the grey image.
                 let dn8 = dn8()?;
-                let n = w * h;
-                let colour = dn8.len() == 3 * n;
                 for i in rows(1) {
                     let g = dn8[i];
-                    let px = if colour {
-                        [dn8[i], dn8[n + i], dn8[2 * n + i], 255]
-                    } else {
-                        [g, g, g, 255]
-                    };
-                    data.extend_from_slice(&px);
+                    data.extend_from_slice(&[g, g, g, 255]);
                 }
                 "image_data"
             }
             "getImageGray8" => {
-                // Several planes (a multi-band camera's): their mean.
                 let dn8 = dn8()?;
-                let n = w * h;
-                let planes = (dn8.len() / n.max(1)).max(1);
-                data.extend(rows(1).map(|i| {
-                    let sum: u32 = (0..planes).map(|b| u32::from(dn8[b * n + i])).sum();
-                    (sum / planes as u32) as u8
-                }));
+                data.extend(rows(1).map(|i| dn8[i]));
                 "image_data"
             }
             _ => {

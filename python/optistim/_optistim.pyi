@@ -60,13 +60,18 @@ class Frame:
 
     @property
     def power(self) -> npt.NDArray[np.float64]:
-        """Collected power per pixel [W]."""
+        """Collected power per pixel [W]: height x width, or bands x height x width for a
+        camera of several bands (in `bands` order)."""
     @property
     def signal(self) -> npt.NDArray[np.float64]:
-        """Signal per pixel [e-/s]."""
+        """Signal per pixel [e-/s], per band like `power`."""
     @property
     def dn(self) -> npt.NDArray[np.uint16]:
-        """Saved DN per pixel (noise included)."""
+        """Saved DN per pixel (noise included): per band, or one raw mosaic for a Bayer
+        camera."""
+    @property
+    def bands(self) -> list[str]:
+        """The camera's band names, in the order of the arrays' planes."""
     @property
     def depth(self) -> npt.NDArray[np.float64]:
         """Range to the surface per pixel [m], NaN where empty."""

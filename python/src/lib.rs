@@ -16,7 +16,10 @@
 //! `PoseError` (a bad pose), `RenderError` (the frame failed, or its files could not be
 //! written).
 
-use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArray2, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
+};
 use optistim::app::products::{self, FrameMeta, FrameRecord, Images};
 use optistim::config::{self, Config};
 use optistim::fidelity::budget::Planner;
@@ -80,15 +83,6 @@ struct Scene {
 impl Scene {
     fn parse(source: Source) -> PyResult<Scene> {
         let config = config::parse(&source.text, &source.file).map_err(scene_err)?;
-        // The frame's arrays are height x width: one band, one image.
-        let bands = config.scene.camera.detector.bands.len();
-        if bands > 1 {
-            return Err(scene_err(format!(
-                "{}: camera of {bands} bands: the Python package renders monochrome cameras \
-                 only (one band) so far; `optistim render` writes every band",
-                source.file
-            )));
-        }
         let planner = config.planner();
         Ok(Scene {
             config: Arc::new(config),
@@ -432,16 +426,26 @@ fn render_threads(threads: Option<usize>) -> usize {
 // ---------------------------------------------------------------------------------------
 // Frame
 
-/// One rendered frame: images as NumPy arrays (row-major from the top-left, height x width),
-/// its statistics, the settings it was rendered with and its error report.
+/// An image's array shape: `[height, width]` for one plane, `[planes, height, width]` else.
+fn planes_shape(planes: usize, [h, w]: [usize; 2]) -> Vec<usize> {
+    if planes == 1 {
+        vec![h, w]
+    } else {
+        vec![planes, h, w]
+    }
+}
+
+/// One rendered frame: images as NumPy arrays (row-major from the top-left, height x width;
+/// a multi-band camera's power and signal bands x height x width, its DN too unless it is a
+/// Bayer mosaic), its statistics, the settings it was rendered with and its error report.
 #[pyclass(module = "optistim")]
 struct Frame {
     config: Arc<Config>,
     meta: FrameMeta,
-    power: Py<PyArray2<f64>>,
-    signal: Py<PyArray2<f64>>,
+    power: Py<PyArrayDyn<f64>>,
+    signal: Py<PyArrayDyn<f64>>,
     depth: Py<PyArray2<f64>>,
-    dn: Py<PyArray2<u16>>,
+    dn: Py<PyArrayDyn<u16>>,
 }
 
 impl Frame {
@@ -453,15 +457,22 @@ impl Frame {
         images: products::ImageSet,
     ) -> PyResult<Frame> {
         let shape = [meta.height, meta.width];
+        let det = &config.scene.camera.detector;
+        let bands = planes_shape(det.bands.len(), shape);
+        let dn_planes = planes_shape(det.dn_planes(), shape);
         Ok(Frame {
-            power: images.power_w.into_pyarray(py).reshape(shape)?.unbind(),
+            power: images
+                .power_w
+                .into_pyarray(py)
+                .reshape(&bands[..])?
+                .unbind(),
             signal: images
                 .signal_e_per_s
                 .into_pyarray(py)
-                .reshape(shape)?
+                .reshape(&bands[..])?
                 .unbind(),
             depth: images.depth_m.into_pyarray(py).reshape(shape)?.unbind(),
-            dn: images.dn.into_pyarray(py).reshape(shape)?.unbind(),
+            dn: images.dn.into_pyarray(py).reshape(&dn_planes[..])?.unbind(),
             config,
             meta,
         })
@@ -475,20 +486,23 @@ impl Frame {
 
     /// Reads the arrays (as they are now) and hands them to `f`.
     fn with_images<T>(&self, py: Python<'_>, f: impl FnOnce(Images<'_>) -> T) -> PyResult<T> {
-        let power: PyReadonlyArray2<f64> = self.power.bind(py).readonly();
-        let signal: PyReadonlyArray2<f64> = self.signal.bind(py).readonly();
+        let power: PyReadonlyArrayDyn<f64> = self.power.bind(py).readonly();
+        let signal: PyReadonlyArrayDyn<f64> = self.signal.bind(py).readonly();
         let depth: PyReadonlyArray2<f64> = self.depth.bind(py).readonly();
-        let dn: PyReadonlyArray2<u16> = self.dn.bind(py).readonly();
+        let dn: PyReadonlyArrayDyn<u16> = self.dn.bind(py).readonly();
         let shape = [self.meta.height, self.meta.width];
-        for (name, s) in [
-            ("power", power.shape()),
-            ("signal", signal.shape()),
-            ("depth", depth.shape()),
-            ("dn", dn.shape()),
+        let det = &self.config.scene.camera.detector;
+        let bands = planes_shape(det.bands.len(), shape);
+        let dn_planes = planes_shape(det.dn_planes(), shape);
+        for (name, s, want) in [
+            ("power", power.shape(), &bands[..]),
+            ("signal", signal.shape(), &bands[..]),
+            ("depth", depth.shape(), &shape[..]),
+            ("dn", dn.shape(), &dn_planes[..]),
         ] {
-            if s != shape {
+            if s != want {
                 return Err(render_err(format!(
-                    "frame.{name}: shape {s:?}, the frame is {shape:?}"
+                    "frame.{name}: shape {s:?}, the frame's is {want:?}"
                 )));
             }
         }
@@ -506,20 +520,28 @@ impl Frame {
 
 #[pymethods]
 impl Frame {
-    /// Collected power per pixel [W] (float64, height x width).
+    /// Collected power per pixel [W] (float64, height x width; bands x height x width for a
+    /// multi-band camera, in `[[camera.band]]` order).
     #[getter]
-    fn power(&self, py: Python<'_>) -> Py<PyArray2<f64>> {
+    fn power(&self, py: Python<'_>) -> Py<PyArrayDyn<f64>> {
         self.power.clone_ref(py)
     }
-    /// Signal per pixel [e-/s] (float64).
+    /// Signal per pixel [e-/s] (float64; per band like `power`).
     #[getter]
-    fn signal(&self, py: Python<'_>) -> Py<PyArray2<f64>> {
+    fn signal(&self, py: Python<'_>) -> Py<PyArrayDyn<f64>> {
         self.signal.clone_ref(py)
     }
-    /// Saved DN per pixel (uint16, noise included).
+    /// Saved DN per pixel (uint16, noise included; per band for a camera of full images per
+    /// band, one height x width raw mosaic for a Bayer camera).
     #[getter]
-    fn dn(&self, py: Python<'_>) -> Py<PyArray2<u16>> {
+    fn dn(&self, py: Python<'_>) -> Py<PyArrayDyn<u16>> {
         self.dn.clone_ref(py)
+    }
+    /// The camera's band names, in the order of the arrays' planes.
+    #[getter]
+    fn bands(&self) -> Vec<String> {
+        let det = &self.config.scene.camera.detector;
+        det.bands.iter().map(|b| b.name.clone()).collect()
     }
     /// Range from the camera to the surface per pixel [m], NaN where empty (float64).
     #[getter]

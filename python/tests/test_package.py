@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 
 import numpy as np
 import pytest
@@ -214,3 +215,34 @@ def test_budgeted_frames_carry_their_error_report(tmp_path):
     # Fixed settings: no model ran, no report.
     fixed = optistim.render(optistim.Scene.from_dict(small_scene_dict(64)))
     assert fixed.error is None and json.loads(fixed.record(0))["predicted_median"] is None
+
+
+def test_a_colour_camera_gives_a_plane_per_band(cli, tmp_path):
+    """config/nrho_bench_rgb.toml (RGGB) at 128 px: power and signal are bands x height x
+    width, the DN one raw mosaic; without the mosaic a DN image per band; the files equal the
+    CLI's."""
+    with open(REPO / "config" / "nrho_bench_rgb.toml", "rb") as f:
+        d = tomllib.load(f)
+    d["camera"]["resolution_px"] = [128, 128]
+    d["camera"]["pixel_pitch_m"] = d["camera"]["pixel_pitch_m"] * 8
+    d["pose"]["camera_position_m"] = [2.0e7, 0.0, 0.0]
+    frame = optistim.render(optistim.Scene.from_dict(d, base_dir=REPO / "config"))
+    assert frame.bands == ["R", "G", "B"]
+    assert frame.power.shape == (3, 128, 128) and frame.signal.shape == (3, 128, 128)
+    assert frame.dn.shape == (128, 128)
+    assert frame.depth.shape == (128, 128)
+    # Each band is the one (P/L) image times its own factor: the bands' ratio is one number.
+    lit = frame.signal[1] > 0
+    ratio = frame.signal[0][lit] / frame.signal[1][lit]
+    assert lit.sum() > 100 and np.ptp(ratio) < 1e-12 * ratio.mean()
+    del d["camera"]["mosaic"]
+    scene = optistim.Scene.from_dict(d, base_dir=REPO / "config")
+    planes = optistim.render(scene)
+    assert planes.dn.shape == (3, 128, 128)
+    planes.to_fits(tmp_path / "py")
+    toml = tmp_path / "rgb.toml"
+    toml.write_text(scene.toml)
+    subprocess.run([cli, "render", str(toml), "--out", str(tmp_path / "cli")], check=True,
+                   capture_output=True)
+    for name in ["power.fits", "signal.fits", "depth.fits", "image.png"]:
+        assert (tmp_path / "py" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes(), name

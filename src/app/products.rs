@@ -219,7 +219,11 @@ pub fn encode(
         )));
     }
     let cards = cards(config, meta);
-    let mut text = vec![("bands", band_names(det))];
+    // A monochrome camera's image.png stays the plain grey PNG (the CORTO server's bytes).
+    let mut text = Vec::new();
+    if bands > 1 {
+        text.push(("bands", band_names(det)));
+    }
     if let Layout::Bayer(order) = det.layout {
         text.push(("bayer_pattern", order.name().to_string()));
     }
@@ -417,18 +421,27 @@ fn band_names(det: &crate::detector::Detector) -> String {
     names.join(",")
 }
 
-/// The cards naming the bands: `NBANDS`; per band `k` (from 1) `BANDk` its name, `BANDkLO`
+/// The cards naming a multi-band camera's bands: `NBANDS`; per band `k` (from 1) `BANDk` its name, `BANDkLO`
 /// and `BANDkHI` its wavelengths [nm], `BANDkC` its effective wavelength [nm], `PL2Wk` and
 /// `PL2SIGk` its factors; `BAYERPAT` for a mosaic (the DN image is the raw mosaic).
 fn band_cards(config: &Config, meta: &FrameMeta) -> Vec<Card> {
     let det = &config.scene.camera.detector;
     let f = |k: String, v: f64, c: &str| Card::new(&k, Value::Float(v), c);
-    let mut c = vec![Card::new(
-        "NBANDS",
-        Value::Int(det.bands.len() as i64),
-        "bands (NAXIS3 of power and signal)",
-    )];
-    for (k, b) in det.bands.iter().enumerate().take(9) {
+    let mut c = Vec::new();
+    // A monochrome camera's headers stay as they were (PL2W and PL2SIG say it all).
+    let bands = if det.bands.len() > 1 {
+        &det.bands[..]
+    } else {
+        &[]
+    };
+    if !bands.is_empty() {
+        c.push(Card::new(
+            "NBANDS",
+            Value::Int(bands.len() as i64),
+            "bands (NAXIS3 of power and signal)",
+        ));
+    }
+    for (k, b) in bands.iter().enumerate() {
         let i = k + 1;
         let (lo, hi) = b.range_m();
         c.push(Card::new(

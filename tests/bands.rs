@@ -301,8 +301,7 @@ fn chromatic_aberrations_move_and_blur_each_band_on_its_own() {
     let intr = cfg.scene.camera.intrinsics.clone();
     let half = 100.0 / intr.focal_px().0;
     let t = glam::DVec3::new(0.8 * half, 0.8 * half, 1.0).normalize();
-    cfg.pose.body_from_camera =
-        cfg.pose.body_from_camera * glam::DQuat::from_rotation_arc(t, glam::DVec3::Z);
+    cfg.pose.body_from_camera *= glam::DQuat::from_rotation_arc(t, glam::DVec3::Z);
     let mut r = Renderer::new(0).unwrap();
     let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
     assert_eq!(frame.band_pl.len(), 2, "R and B have their own distortion");
@@ -358,4 +357,44 @@ fn chromatic_aberrations_move_and_blur_each_band_on_its_own() {
     );
     // R and B were not touched by G's PSF.
     assert_eq!(&dn[..n], &dn_sharp[..n]);
+}
+
+/// A grey screen cannot stimulate a colour camera yet: the stimulator section and the daemon
+/// refuse a camera of several bands by name, rather than driving its first band.
+#[test]
+fn the_stimulator_and_the_daemon_refuse_several_bands() {
+    let text = std::fs::read_to_string("config/stimulator.toml").unwrap();
+    let mono = text
+        .lines()
+        .find(|l| l.starts_with("qe = "))
+        .expect("config/stimulator.toml has one qe curve")
+        .to_string();
+    let bands: String = RGB
+        .iter()
+        .map(|(name, lo, hi, qe)| {
+            format!(
+                "\n[[camera.band]]\nname = \"{name}\"\n\
+                 qe = {{ wavelength_nm = [{lo}, {hi}], value = [{qe}, {qe}] }}\n"
+            )
+        })
+        .collect();
+    // The bands go after the camera's last key: before its next table.
+    let without = text.replace(&format!("{mono}\n"), "");
+    let at = without
+        .find("\n[camera.noise]")
+        .expect("a [camera.noise] table");
+    let colour = format!("{}\n{bands}{}", &without[..at], &without[at..]);
+    let file = "config/stimulator.toml";
+    let (key, value) = refusal(&colour, file);
+    assert_eq!(
+        (key.as_str(), value.as_str()),
+        ("stimulator", "\"a camera of 3 bands\"")
+    );
+    // Without the stimulator, the daemon's frame maker says why it cannot serve it.
+    let spec = SceneSpec::default();
+    let cfg = parse(&with_bands(&spec, "", &RGB));
+    let err = optistim::pipeline::FrameMaker::new(&cfg)
+        .err()
+        .expect("refused");
+    assert!(err.to_string().contains("3 bands"), "{err}");
 }

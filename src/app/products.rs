@@ -306,7 +306,9 @@ pub struct FrameRecord {
     pub phase_deg: f64,
     /// Camera to body centre [m].
     pub range_m: f64,
+    /// Summed over the image (and over the bands of a multi-band camera).
     pub total_power_w: f64,
+    /// Summed like `total_power_w`.
     pub total_signal_e_per_s: f64,
     pub saturated_px: u64,
     /// "budget" or "fixed".

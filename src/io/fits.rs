@@ -94,7 +94,7 @@ pub fn encode(
         "IEEE floating point",
     );
     let n = width * height;
-    let planes = if n == 0 { 1 } else { (data.len() / n).max(1) };
+    let planes = data.len().checked_div(n).unwrap_or(1).max(1);
     let naxis = if planes > 1 { 3 } else { 2 };
     header += &card("NAXIS", &Value::Int(naxis), "image, or a cube of bands");
     header += &card("NAXIS1", &Value::Int(width as i64), "columns (u)");

@@ -129,7 +129,7 @@ pub fn encode_png_planes(
     text: &[(&str, String)],
 ) -> Result<Vec<u8>, png::EncodingError> {
     let n = width * height;
-    let planes = if n == 0 { 1 } else { dn.len() / n };
+    let planes = dn.len().checked_div(n).unwrap_or(1);
     let (color, rows, samples) = if planes == 3 {
         let rgb: Vec<u16> = (0..n)
             .flat_map(|i| [dn[i], dn[n + i], dn[2 * n + i]])

@@ -22,7 +22,15 @@ const RGB: [(&str, f64, f64, f64); 3] = [
 /// The scene of `spec` with the camera's one QE curve replaced by `bands` (and `extra`
 /// camera keys, e.g. the mosaic).
 fn with_bands(spec: &SceneSpec, extra: &str, bands: &[(&str, f64, f64, f64)]) -> String {
-    let tables: String = bands
+    let tables = band_tables(bands);
+    let text = spec.toml();
+    assert!(text.contains(MONO_QE));
+    text.replace(MONO_QE, &format!("{extra}\n{tables}"))
+}
+
+/// `[[camera.band]]` tables of flat bands `(name, from nm, to nm, QE)`.
+fn band_tables(bands: &[(&str, f64, f64, f64)]) -> String {
+    bands
         .iter()
         .map(|(name, lo, hi, qe)| {
             format!(
@@ -30,10 +38,7 @@ fn with_bands(spec: &SceneSpec, extra: &str, bands: &[(&str, f64, f64, f64)]) ->
                  qe = {{ wavelength_nm = [{lo}, {hi}], value = [{qe}, {qe}] }}\n"
             )
         })
-        .collect();
-    let text = spec.toml();
-    assert!(text.contains(MONO_QE));
-    text.replace(MONO_QE, &format!("{extra}\n{tables}"))
+        .collect()
 }
 
 fn parse(text: &str) -> Config {
@@ -369,15 +374,7 @@ fn the_stimulator_and_the_daemon_refuse_several_bands() {
         .find(|l| l.starts_with("qe = "))
         .expect("config/stimulator.toml has one qe curve")
         .to_string();
-    let bands: String = RGB
-        .iter()
-        .map(|(name, lo, hi, qe)| {
-            format!(
-                "\n[[camera.band]]\nname = \"{name}\"\n\
-                 qe = {{ wavelength_nm = [{lo}, {hi}], value = [{qe}, {qe}] }}\n"
-            )
-        })
-        .collect();
+    let bands = band_tables(&RGB);
     // The bands go after the camera's last key: before its next table.
     let without = text.replace(&format!("{mono}\n"), "");
     let at = without

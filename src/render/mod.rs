@@ -254,16 +254,47 @@ pub(crate) fn with_band_distortions(
     frame: &mut Frame,
     mut render: impl FnMut(&Scene) -> Result<Vec<f64>, RenderError>,
 ) -> Result<(), RenderError> {
-    let intr = &scene.camera.intrinsics;
-    for (b, band) in scene.camera.detector.bands.iter().enumerate() {
-        let Some(d) = band.distortion.filter(|d| *d != intr.distortion) else {
-            continue;
-        };
+    for (b, intr_b) in band_intrinsics(scene) {
         let mut own = scene.clone();
-        own.camera.intrinsics.distortion = d;
+        own.camera.intrinsics = intr_b;
         frame.band_pl.push((b, render(&own)?));
     }
     Ok(())
+}
+
+/// The camera's intrinsics for each band whose own distortion differs from the camera's
+/// (lateral chromatic aberration), by band index.
+fn band_intrinsics(scene: &Scene) -> Vec<(usize, crate::camera::Intrinsics)> {
+    let intr = &scene.camera.intrinsics;
+    let bands = scene.camera.detector.bands.iter().enumerate();
+    bands
+        .filter_map(|(b, band)| {
+            let d = band.distortion.filter(|d| *d != intr.distortion)?;
+            let own = crate::camera::Intrinsics {
+                distortion: d,
+                ..intr.clone()
+            };
+            Some((b, own))
+        })
+        .collect()
+}
+
+/// The view of `scene`'s body through `intr` from `pose` (the camera's, or a band's own).
+fn view_through<'a>(
+    intr: &'a crate::camera::Intrinsics,
+    scene: &'a Scene,
+    pose: &Pose,
+    settings: &Settings,
+) -> View<'a> {
+    View::new(
+        intr,
+        &scene.body.shape,
+        scene.body.relief.as_ref(),
+        settings.self_shadowing,
+        pose,
+        settings.supersampling,
+        settings.fov,
+    )
 }
 
 pub(crate) fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
@@ -393,15 +424,8 @@ fn render_in_pool(
     let t_total = Instant::now();
     let intr = &scene.camera.intrinsics;
     let (width, height) = (intr.width_px as usize, intr.height_px as usize);
-    let view = View::new(
-        intr,
-        &scene.body.shape,
-        scene.body.relief.as_ref(),
-        settings.self_shadowing,
-        pose,
-        settings.supersampling,
-        settings.fov,
-    );
+    let view = view_through(intr, scene, pose, settings);
+    let band_intr = band_intrinsics(scene);
     let mut stats = FrameStats {
         phase_deg: view.csf.phase_rad.to_degrees(),
         ..Default::default()
@@ -488,25 +512,10 @@ fn render_in_pool(
             image_from_cloud(view, &trig, settings, total, threads, buf, t)
         };
         pl_image = to_image(&view, &mut t);
-        for (b, band) in scene.camera.detector.bands.iter().enumerate() {
-            let Some(d) = band.distortion.filter(|d| *d != intr.distortion) else {
-                continue;
-            };
-            let intr_b = crate::camera::Intrinsics {
-                distortion: d,
-                ..intr.clone()
-            };
-            let view_b = View::new(
-                &intr_b,
-                &scene.body.shape,
-                scene.body.relief.as_ref(),
-                settings.self_shadowing,
-                pose,
-                settings.supersampling,
-                settings.fov,
-            );
+        for (b, intr_b) in &band_intr {
+            let view_b = view_through(intr_b, scene, pose, settings);
             let img = to_image(&view_b, &mut t);
-            band_pl.push((b, img));
+            band_pl.push((*b, img));
         }
     }
     stats.total_pl_gridded = pl_image.iter().sum();
@@ -522,14 +531,8 @@ fn render_in_pool(
         let relief = scene.body.relief.as_ref();
         let shape = &scene.body.shape;
         footprint::apply(intr, shape, relief, &brdf, a, pose, &mut pl_image);
-        for (b, img) in &mut band_pl {
-            let intr_b = crate::camera::Intrinsics {
-                distortion: scene.camera.detector.bands[*b]
-                    .distortion
-                    .unwrap_or_default(),
-                ..intr.clone()
-            };
-            footprint::apply(&intr_b, shape, relief, &brdf, a, pose, img);
+        for ((_, intr_b), (_, img)) in band_intr.iter().zip(&mut band_pl) {
+            footprint::apply(intr_b, shape, relief, &brdf, a, pose, img);
         }
         stats.total_pl_image = pl_image.iter().sum();
         t.footprint = ms(t0);

@@ -40,8 +40,8 @@ impl Band {
         (a.max(c), b.min(d).max(a.max(c)))
     }
 
-    /// The band's effective wavelength [m]: the mean of lambda weighted by `QE T lambda` over
-    /// a flat photon spectrum (a header value, not used in any integral).
+    /// The band's effective wavelength [m]: the mean of lambda weighted by the band's response
+    /// to a spectrum flat in energy, `QE T lambda` (a header value, not used in any integral).
     pub fn centre_m(&self) -> f64 {
         let (lo, hi) = self.range_m();
         let w = |l: f64| self.qe.at(l) * self.transmittance.at(l) * l;

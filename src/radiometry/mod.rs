@@ -246,16 +246,31 @@ impl SunSpectrum {
         let Some(r) = reflectance else {
             return self.radiance_integral(band_m);
         };
-        let (lo, hi) = band_m.unwrap_or_else(|| match self {
-            SunSpectrum::Tabulated { irradiance, .. } => irradiance.range_m(),
-            // The black body beyond [50 nm, 200 um] holds under 1e-4 of its power.
-            SunSpectrum::BlackBody { .. } => (50e-9, 200e-6),
-        });
         let mut knots = r.table.wavelengths_m().to_vec();
         if let SunSpectrum::Tabulated { irradiance, .. } = self {
             knots.extend_from_slice(irradiance.wavelengths_m());
         }
-        integrate(|l| self.radiance(l) * r.relative(l), lo, hi, &knots)
+        let reflected =
+            |lo: f64, hi: f64| integrate(|l| self.radiance(l) * r.relative(l), lo, hi, &knots);
+        if let Some((lo, hi)) = band_m {
+            return reflected(lo, hi);
+        }
+        // The whole spectrum: numerically over the reflectance table, and beyond it (where
+        // the table's end values hold) the Sun's own integral times those values.
+        let (t_lo, t_hi) = r.table.range_m();
+        let start = match self {
+            SunSpectrum::Tabulated { irradiance, .. } => irradiance.range_m().0,
+            SunSpectrum::BlackBody { .. } => 1e-9,
+        };
+        let upto = |l: f64| {
+            if l > start {
+                self.radiance_integral(Some((start, l)))
+            } else {
+                0.0
+            }
+        };
+        let above = (self.radiance_integral(None) - upto(t_hi)).max(0.0);
+        upto(t_lo) * r.relative(t_lo) + reflected(t_lo, t_hi) + above * r.relative(t_hi)
     }
 }
 
@@ -456,6 +471,36 @@ mod tests {
             SpectralTable::new(vec![1.0, 2.0], vec![f64::NAN, 0.5], (0.0, 1.0)),
             Err(TableError::NotFinite { .. })
         ));
+    }
+
+    /// The reflected whole-spectrum integral: a flat shape gives the Sun's own; a sloped one
+    /// the brute-force integral over the whole spectrum with the table's ends held.
+    #[test]
+    fn reflected_radiance_holds_the_tables_ends_beyond_it() {
+        let sun = SunSpectrum::BlackBody {
+            temperature_k: 5782.0,
+            radius_m: 6.957e8,
+            scale: 1.0,
+        };
+        let flat = SpectralTable::new(vec![400e-9, 1000e-9], vec![0.3, 0.3], (0.0, 1.0)).unwrap();
+        let r = Reflectance::new("flat", flat, 550e-9).unwrap();
+        let whole = sun.radiance_integral(None);
+        let got = sun.reflected_radiance_integral(None, Some(&r));
+        assert!((got / whole - 1.0).abs() < 1e-6, "{got} {whole}");
+        let slope = SpectralTable::new(vec![400e-9, 1000e-9], vec![0.1, 0.3], (0.0, 1.0)).unwrap();
+        let r = Reflectance::new("slope", slope, 700e-9).unwrap();
+        let got = sun.reflected_radiance_integral(None, Some(&r));
+        let brute = integrate(
+            |l| sun.radiance(l) * r.relative(l),
+            50e-9,
+            200e-6,
+            &[400e-9, 1e-6],
+        );
+        assert!((got / brute - 1.0).abs() < 1e-4, "{got} {brute}");
+        // Over a band it is the band's integral.
+        let band = sun.reflected_radiance_integral(Some((500e-9, 600e-9)), Some(&r));
+        let want = integrate(|l| sun.radiance(l) * r.relative(l), 500e-9, 600e-9, &[]);
+        assert!((band / want - 1.0).abs() < 1e-12);
     }
 
     #[test]

@@ -228,6 +228,8 @@ fn bad_bands_are_refused_by_name() {
         refusal(&order, "<t>"),
         ("camera.mosaic".into(), "\"RGBG\"".into())
     );
+    let power = with_bands(&spec, "power_band_nm = [400, 700]", &RGB);
+    assert_eq!(refusal(&power, "<t>").0, "camera.power_band_nm");
     let same = with_bands(&spec, "", &[RGB[0], RGB[0]]);
     assert_eq!(refusal(&same, "<t>").0, "camera.band[1].name");
     let spectrum =

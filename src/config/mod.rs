@@ -1205,6 +1205,13 @@ impl Validator<'_> {
             }
             None => None,
         };
+        if band.is_some() && detector.bands.len() > 1 {
+            return self.err(
+                "camera.power_band_nm",
+                c.power_band_nm.unwrap_or_default(),
+                "absent with [[camera.band]]: each band's power.fits plane is over its own range",
+            );
+        }
         Ok((
             Camera {
                 intrinsics,

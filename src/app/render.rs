@@ -114,6 +114,7 @@ pub fn run(
     let (w, h) = (meta.width, meta.height);
     let signal = &images.signal_e_per_s;
     if let Some((error_pl, _)) = &reference {
+        // In the first band's W for a camera of several (the estimate is the (P/L) image's).
         let error_w: Vec<f64> = error_pl
             .iter()
             .map(|x| x * meta.band_radiance_w[0])

@@ -34,11 +34,18 @@ impl Scene {
         self.camera.detector.band_factors(&self.sun, spectrum)
     }
 
-    /// A rendered `(P/L)` image of `size` through the camera, every band from the same image
-    /// ([`Detector::image`]): the signal of every band [e-/s] and the DN the camera hands out.
-    pub fn record(&self, pl: &[f64], size: (usize, usize), frame_id: u64) -> (Vec<f64>, Vec<u16>) {
+    /// A rendered frame through the camera ([`crate::detector::Detector::image`]): band
+    /// `b` sees the `(P/L)` image `pl(b)` of `size` (the frame's, or its own under a
+    /// distortion of its own: `render::Frame::band`). Returns every band's signal [e-/s] and
+    /// the DN the camera hands out.
+    pub fn record<'a>(
+        &self,
+        pl: impl Fn(usize) -> &'a [f64] + Sync,
+        size: (usize, usize),
+        frame_id: u64,
+    ) -> (Vec<f64>, Vec<u16>) {
         let factors = self.band_factors();
-        self.camera.detector.image(|_| pl, size, &factors, frame_id)
+        self.camera.detector.image(pl, size, &factors, frame_id)
     }
 
     /// The first band's factor ([`Scene::band_factors`]): a monochrome camera's.

@@ -76,7 +76,9 @@ fn every_band_is_the_one_render_times_its_own_band_integral() {
     let mut r = Renderer::new(0).unwrap();
     let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
     let n = frame.width * frame.height;
-    let (signal, dn) = cfg.scene.record(&frame.pl, (frame.width, frame.height), 0);
+    let (signal, dn) = cfg
+        .scene
+        .record(|_| &frame.pl[..], (frame.width, frame.height), 0);
     assert_eq!(signal.len(), 3 * n);
     assert_eq!(dn.len(), 3 * n, "a full image per band");
     let factors = cfg.scene.band_factors();
@@ -116,7 +118,7 @@ fn a_bayer_sensor_records_each_pixels_own_band() {
         .unwrap();
     let size = (frame.width, frame.height);
     let n = size.0 * size.1;
-    let (_, full) = planes.scene.record(&frame.pl, size, 3);
+    let (_, full) = planes.scene.record(|_| &frame.pl[..], size, 3);
     for (order, cells) in [
         ("RGGB", [0, 1, 1, 2]),
         ("BGGR", [2, 1, 1, 0]),
@@ -124,7 +126,7 @@ fn a_bayer_sensor_records_each_pixels_own_band() {
         ("GBRG", [1, 2, 0, 1]),
     ] {
         let cfg = parse(&with_bands(&spec, &format!("mosaic = \"{order}\""), &RGB));
-        let (signal, mosaic) = cfg.scene.record(&frame.pl, size, 3);
+        let (signal, mosaic) = cfg.scene.record(|_| &frame.pl[..], size, 3);
         assert_eq!(signal.len(), 3 * n, "{order}: every band's signal");
         assert_eq!(mosaic.len(), n, "{order}: one raw mosaic");
         let mut lit = [0usize; 3];
@@ -343,7 +345,7 @@ fn chromatic_aberrations_move_and_blur_each_band_on_its_own() {
     assert!(spread > 1.5, "{spread}");
 
     // Longitudinal: G's own PSF blurs G's DN and keeps G's signal sharp and whole.
-    let (signal, dn) = products::record(&cfg, &frame, 0);
+    let (signal, dn) = cfg.scene.record(|b| frame.band(b), (w, h), 0);
     let n = w * h;
     let k = cfg.scene.band_factors();
     for (s, pl) in signal[n..2 * n].iter().zip(&frame.pl) {
@@ -351,7 +353,7 @@ fn chromatic_aberrations_move_and_blur_each_band_on_its_own() {
     }
     let mut sharp = cfg.clone();
     sharp.scene.camera.detector.bands[1].psf_sigma_px = None;
-    let (_, dn_sharp) = products::record(&sharp, &frame, 0);
+    let (_, dn_sharp) = sharp.scene.record(|b| frame.band(b), (w, h), 0);
     let peak = |d: &[u16]| d.iter().copied().max().unwrap();
     let sum = |d: &[u16]| d.iter().map(|&x| x as f64).sum::<f64>();
     let (g, g_sharp) = (&dn[n..2 * n], &dn_sharp[n..2 * n]);

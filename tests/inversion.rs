@@ -66,7 +66,7 @@ fn hapke_parameters_come_back_from_noisy_images_within_their_uncertainties() {
                 .unwrap();
             let intr = &cfg.scene.camera.intrinsics;
             let size = (intr.width_px as usize, intr.height_px as usize);
-            cfg.scene.record(&frame.pl, size, 7).1
+            cfg.scene.record(|_| &frame.pl[..], size, 7).1
         })
         .collect();
     let images: Vec<Image> = configs

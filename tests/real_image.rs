@@ -55,7 +55,9 @@ fn a_misplaced_rendering_is_caught_and_realigned() {
     let cfg = optistim::config::load(scene).unwrap_or_else(|e| panic!("{e}"));
     let mut r = optistim::render::Renderer::new(0).unwrap();
     let frame = r.render(&cfg.scene, &cfg.pose, &cfg.settings).unwrap();
-    let (_, dn) = cfg.scene.record(&frame.pl, (frame.width, frame.height), 0);
+    let (_, dn) = cfg
+        .scene
+        .record(|_| &frame.pl[..], (frame.width, frame.height), 0);
     let img = Gray::new(
         frame.width,
         frame.height,

@@ -43,7 +43,10 @@ pub fn run(
     let mut renderer = Renderer::new(config.settings.threads)?;
     let frame = renderer.render(&config.scene, &config.pose, &config.settings)?;
     let det = &config.scene.camera.detector;
-    let (_, dn) = super::products::record(config, &frame, config.pose.frame_id);
+    let size = (frame.width, frame.height);
+    let (_, dn) = config
+        .scene
+        .record(|b| frame.band(b), size, config.pose.frame_id);
     let render_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let to_f64 = |v: &[u16]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();

@@ -151,19 +151,6 @@ pub fn detect(
     (meta, images)
 }
 
-/// A rendered frame through the camera: every band's signal [e-/s] (from its own image under
-/// a distortion of its own) and the DN the camera hands out.
-pub fn record(
-    config: &Config,
-    frame: &crate::render::Frame,
-    frame_id: u64,
-) -> (Vec<f64>, Vec<u16>) {
-    let factors = config.scene.band_factors();
-    let size = (frame.width, frame.height);
-    let det = &config.scene.camera.detector;
-    det.image(|b| frame.band(b), size, &factors, frame_id)
-}
-
 /// Per band, W per sr m^2 of (P/L) after reflection by the body: over `power_band_m` for a
 /// monochrome camera (the whole spectrum without one), over each band's wavelengths for
 /// several.

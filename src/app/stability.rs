@@ -449,7 +449,8 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
                 .render(&cfg.scene, &cfg.pose, &cfg.settings)
                 .map_err(|e| e.to_string())?;
             let det = &cfg.scene.camera.detector;
-            let (signal, dn) = super::products::record(&cfg, &frame, cfg.pose.frame_id);
+            let size = (frame.width, frame.height);
+            let (signal, dn) = cfg.scene.record(|b| frame.band(b), size, cfg.pose.frame_id);
             let bad_px = frame
                 .pl
                 .iter()

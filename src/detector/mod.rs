@@ -245,27 +245,15 @@ impl Detector {
         frame_id: u64,
         dn_out: &mut Vec<u16>,
     ) {
-        self.expose_plane(signal_e_per_s, size, frame_id, self.psf_sigma_px, 0, dn_out);
-    }
-
-    /// [`Detector::expose`] of one image of a multi-band camera: blurred by `psf_sigma_px`,
-    /// its noises drawn from streams of its own (`plane`; plane 0's are a monochrome
-    /// camera's), so that the bands' noises are independent.
-    pub fn expose_plane(
-        &self,
-        signal_e_per_s: &[f64],
-        size: (usize, usize),
-        frame_id: u64,
-        psf_sigma_px: f64,
-        plane: u64,
-        dn_out: &mut Vec<u16>,
-    ) {
         dn_out.clear();
         dn_out.resize(signal_e_per_s.len(), 0);
-        self.expose_into(signal_e_per_s, size, frame_id, psf_sigma_px, plane, dn_out);
+        let sigma = self.psf_sigma_px;
+        self.expose_into(signal_e_per_s, size, frame_id, sigma, 0, dn_out);
     }
 
-    /// [`Detector::expose_plane`] into a slice of the image's size.
+    /// [`Detector::expose`] of one image into a slice of the image's size: blurred by
+    /// `psf_sigma_px`, its noises drawn from streams of its own (`plane`; plane 0's are a
+    /// monochrome camera's), so that a multi-band camera's bands have independent noises.
     fn expose_into(
         &self,
         signal_e_per_s: &[f64],

@@ -190,7 +190,7 @@ pub fn image_png(
     let det = &config.scene.camera.detector;
     let i = &config.scene.camera.intrinsics;
     let (w, h) = (i.width_px as usize, i.height_px as usize);
-    let (_, dn) = config.scene.record(pl, (w, h), pose.frame_id);
+    let (_, dn) = config.scene.record(|_| pl, (w, h), pose.frame_id);
     crate::io::encode_png_gray(w, h, &dn, det.saved_bits).map_err(|e| e.to_string())
 }
 

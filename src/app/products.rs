@@ -37,7 +37,7 @@ pub struct FrameMeta {
     pub plan: Option<Plan>,
     /// Per band, W per sr m^2 of (P/L): the Sun's radiance after reflection by the body
     /// (its spectral shape), integrated over `power_band_m` for a monochrome camera, over
-    /// each band's wavelengths for several.
+    /// each band's half-maximum range for several.
     pub band_radiance_w: Vec<f64>,
     /// Per band, e-/s per sr m^2 of (P/L) (Eq. 45 per band).
     pub band_factors: Vec<f64>,
@@ -152,8 +152,8 @@ pub fn detect(
 }
 
 /// Per band, W per sr m^2 of (P/L) after reflection by the body: over `power_band_m` for a
-/// monochrome camera (the whole spectrum without one), over each band's wavelengths for
-/// several.
+/// monochrome camera (the whole spectrum without one), over each band's half-maximum range
+/// ([`crate::detector::Band::range_m`]) for several.
 pub fn band_radiances(config: &Config) -> Vec<f64> {
     let scene = &config.scene;
     let bands = &scene.camera.detector.bands;

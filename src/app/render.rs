@@ -15,13 +15,27 @@ use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
 
+/// One band's share of a frame.
+#[derive(Debug, Serialize)]
+pub struct BandTotals {
+    pub name: String,
+    /// Collected power over the band's half-maximum range [W].
+    pub total_power_w: f64,
+    /// The band's signal [e-/s].
+    pub total_signal_e_per_s: f64,
+}
+
 #[derive(Debug, Serialize)]
 pub struct RenderSummary {
     pub scene: String,
-    /// Total collected power in `power_band_nm` (or bolometric) [W].
+    /// Total collected power in `power_band_nm` (or bolometric) [W]; over every band's own
+    /// range, summed, for a camera of several.
     pub total_power_w: f64,
-    /// Total signal [e-/s].
+    /// Total signal [e-/s] (summed over the bands).
     pub total_signal_e_per_s: f64,
+    /// A camera of several bands: each band's name and totals.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub bands: Vec<BandTotals>,
     pub points_sampled: usize,
     pub points_kept: usize,
     pub phase_deg: f64,
@@ -168,10 +182,25 @@ pub fn run(
         o.insert("write".into(), write_ms.into());
     }
     let max_dn = det.max_dn() as u16;
+    let n = w * h;
+    let bands = if det.bands.len() > 1 {
+        let plane = |v: &[f64], b: usize| v[b * n..(b + 1) * n].iter().sum();
+        let bands = det.bands.iter().enumerate();
+        bands
+            .map(|(b, band)| BandTotals {
+                name: band.name.clone(),
+                total_power_w: plane(&images.power_w, b),
+                total_signal_e_per_s: plane(signal, b),
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     Ok(RenderSummary {
         scene: scene_name.to_string(),
         total_power_w: images.power_w.iter().sum(),
         total_signal_e_per_s: signal.iter().sum(),
+        bands,
         points_sampled: meta.stats.points_sampled,
         points_kept: meta.stats.points_kept,
         phase_deg: meta.stats.phase_deg,

@@ -33,17 +33,53 @@ pub struct Band {
 }
 
 impl Band {
-    /// The wavelengths the band sees [m]: where its QE and transmittance are both tabulated.
+    /// The band's wavelengths [m]: where its response `QE T` is at least half its peak (the
+    /// full width at half maximum; a flat band's whole range), found on 4000 steps over
+    /// where both curves are tabulated, the edges interpolated. The range of its plane of
+    /// `power.fits` and of its `BANDkLO` / `BANDkHI` header cards.
     pub fn range_m(&self) -> (f64, f64) {
+        let (lo, hi) = self.support_m();
+        let n = 4000;
+        let at = |k: usize| lo + (hi - lo) * k as f64 / n as f64;
+        let r = |l: f64| self.qe.at(l) * self.transmittance.at(l);
+        let peak = (0..=n).map(|k| r(at(k))).fold(0.0, f64::max);
+        if peak <= 0.0 {
+            return (lo, hi);
+        }
+        let half = 0.5 * peak;
+        // The crossing of half the peak between two steps, linearly.
+        let cross = |k0: usize, k1: usize| {
+            let (l0, l1) = (at(k0), at(k1));
+            let (r0, r1) = (r(l0), r(l1));
+            if r1 == r0 {
+                l1
+            } else {
+                l0 + (half - r0) / (r1 - r0) * (l1 - l0)
+            }
+        };
+        let first = (0..=n).find(|&k| r(at(k)) >= half).unwrap_or(0);
+        let last = (0..=n).rev().find(|&k| r(at(k)) >= half).unwrap_or(n);
+        let from = if first == 0 {
+            lo
+        } else {
+            cross(first - 1, first)
+        };
+        let to = if last == n { hi } else { cross(last + 1, last) };
+        (from, to)
+    }
+
+    /// Where both the QE and the transmittance are tabulated [m].
+    fn support_m(&self) -> (f64, f64) {
         let (a, b) = self.qe.range_m();
         let (c, d) = self.transmittance.range_m();
         (a.max(c), b.min(d).max(a.max(c)))
     }
 
     /// The band's effective wavelength [m]: the mean of lambda weighted by the band's response
-    /// to a spectrum flat in energy, `QE T lambda` (a header value, not used in any integral).
+    /// to a spectrum flat in energy, `QE T lambda`, over its whole support (a header value,
+    /// not used in any integral).
     pub fn centre_m(&self) -> f64 {
-        let (lo, hi) = self.range_m();
+        let (lo, hi) = self.support_m();
         let w = |l: f64| self.qe.at(l) * self.transmittance.at(l) * l;
         let knots = self.qe.wavelengths_m();
         let n = crate::radiometry::integrate(|l| w(l) * l, lo, hi, knots);
@@ -434,6 +470,37 @@ mod tests {
             noise,
             seed: 3,
         }
+    }
+
+    /// A band's range is its half-maximum width: 525-575 nm for a triangle peaking at 550 nm,
+    /// the whole table for a flat band.
+    #[test]
+    fn a_bands_range_is_its_half_maximum_width() {
+        let tri = SpectralTable::new(
+            vec![500e-9, 550e-9, 600e-9],
+            vec![0.0, 0.8, 0.0],
+            (0.0, 1.0),
+        );
+        let band = Band {
+            name: "F550".into(),
+            qe: tri.unwrap(),
+            transmittance: SpectralTable::flat(400e-9, 700e-9, 0.9),
+            psf_sigma_px: None,
+            distortion: None,
+        };
+        let (lo, hi) = band.range_m();
+        assert!(
+            (lo - 525e-9).abs() < 1e-13 && (hi - 575e-9).abs() < 1e-13,
+            "{lo} {hi}"
+        );
+        // Weighted by lambda too: (mu^2 + sigma^2) / mu, sigma^2 = 50^2 / 6 nm^2.
+        let c = band.centre_m();
+        assert!(
+            (c - (550e-9 + 2500e-18 / 6.0 / 550e-9)).abs() < 1e-12,
+            "{c}"
+        );
+        let flat = &det(Noise::default()).bands[0];
+        assert_eq!(flat.range_m(), (400e-9, 700e-9));
     }
 
     #[test]

@@ -81,6 +81,46 @@ fn allen_moon_p_psi(alpha_deg: f64) -> f64 {
     10f64.powf(-0.4 * dv) * r * r
 }
 
+/// The rendered Moon's `p Psi` over Allen's law, per phase: the Sun of `cfg`'s pose turned
+/// about the Moon in the plane of the photo's geometry to each `alpha_deg`. `moon_factor` and
+/// `sun_factor` turn the rendered (P/L) and the Sun's `A_sun / d^2` into one quantity (W, or
+/// photons in a band): `p Psi = sum(P/L) moon_factor / A_cam / (A_sun sun_factor / d^2)
+/// (range / R)^2`.
+fn ratios_to_allen(
+    cfg: &optistim::config::Config,
+    phases_deg: &[f64],
+    moon_factor: f64,
+    sun_factor: f64,
+    what: &str,
+) -> Vec<f64> {
+    let s = &cfg.scene;
+    let mut r = optistim::render::Renderer::new(0).unwrap();
+    let cam = cfg.pose.camera_position_m;
+    let sun = cfg.pose.sun_position_m;
+    let scale = (cam.length() / s.body.shape.bounding_radius_m()).powi(2);
+    let axis = cam.cross(sun).normalize();
+    let a_cam = s.camera.intrinsics.aperture_area_m2();
+    let mut ratios = Vec::new();
+    for &alpha_deg in phases_deg {
+        let mut pose = cfg.pose;
+        pose.sun_position_m = glam::DQuat::from_axis_angle(axis, alpha_deg.to_radians())
+            * cam.normalize()
+            * sun.length();
+        let f = r.render(s, &pose, &cfg.settings).unwrap();
+        let moon = f.pl.iter().sum::<f64>() * moon_factor / a_cam;
+        let at_moon = s.sun.area_m2() * sun_factor / pose.sun_position_m.length_squared();
+        let rendered = moon / at_moon * scale;
+        let real = allen_moon_p_psi(f.stats.phase_deg);
+        println!(
+            "phase {:6.2} deg: p Psi {what} {rendered:.5}, Allen (V) {real:.5}, ratio {:.3}",
+            f.stats.phase_deg,
+            rendered / real
+        );
+        ratios.push(rendered / real);
+    }
+    ratios
+}
+
 /// The photo's scene, independently of any camera: the Moon that `config/bfs_25mm.toml`
 /// renders (Sato's Hapke parameters, the albedo map as normal albedos, the DEM) is as bright as
 /// the real Moon over phase. The rendered `p Psi(alpha)` is the irradiance at the camera over
@@ -94,34 +134,11 @@ fn allen_moon_p_psi(alpha_deg: f64) -> f64 {
 #[test]
 fn the_rendered_moon_is_as_bright_as_the_real_one() {
     let cfg = optistim::config::load(Path::new("config/bfs_25mm.toml")).unwrap();
-    let mut r = optistim::render::Renderer::new(0).unwrap();
-    let s = &cfg.scene;
-    let l_sun = s.sun.radiance_integral(None);
-    let cam = cfg.pose.camera_position_m;
-    let sun = cfg.pose.sun_position_m;
-    let e_sun = s.sun.irradiance_at(sun.length());
-    let scale = (cam.length() / s.body.shape.bounding_radius_m()).powi(2);
-    // The Sun turned about the Moon in the plane of the photo's geometry.
-    let axis = cam.cross(sun).normalize();
-    let mut ratios = Vec::new();
-    for alpha_deg in [
-        10.0, 20.0, 30.0, 40.0, 51.29, 60.0, 75.0, 90.0, 105.0, 120.0f64,
-    ] {
-        let mut pose = cfg.pose;
-        pose.sun_position_m = glam::DQuat::from_axis_angle(axis, alpha_deg.to_radians())
-            * cam.normalize()
-            * sun.length();
-        let f = r.render(s, &pose, &cfg.settings).unwrap();
-        let e_moon = f.pl.iter().sum::<f64>() * l_sun / s.camera.intrinsics.aperture_area_m2();
-        let rendered = e_moon / e_sun * scale;
-        let real = allen_moon_p_psi(f.stats.phase_deg);
-        println!(
-            "phase {:6.2} deg: p Psi rendered {rendered:.5}, Allen (V) {real:.5}, ratio {:.3}",
-            f.stats.phase_deg,
-            rendered / real
-        );
-        ratios.push(rendered / real);
-    }
+    let l_sun = cfg.scene.sun.radiance_integral(None);
+    let phases = [
+        10.0, 20.0, 30.0, 40.0, 51.29, 60.0, 75.0, 90.0, 105.0, 120.0,
+    ];
+    let ratios = ratios_to_allen(&cfg, &phases, l_sun, l_sun, "rendered");
     // Within the colour offset and the law's 0.1 mag, at every phase ...
     assert!(
         ratios.iter().all(|q| (0.95..1.25).contains(q)),
@@ -179,33 +196,9 @@ fn the_lunar_spectrum_in_v_keeps_the_rendered_moon_near_allens_law() {
     // The camera sees the Moon's redder light (its QE reaches 1000 nm): several per cent more.
     assert!((1.03..1.25).contains(&f_bfs), "{f_bfs}");
 
-    // The rendered p Psi in V with the spectrum, against Allen's law, over phase.
-    let mut red = cfg.clone();
-    red.scene.body.spectrum = Some(moon.clone());
-    let mut r = optistim::render::Renderer::new(0).unwrap();
-    let cam = cfg.pose.camera_position_m;
-    let sun = cfg.pose.sun_position_m;
-    let scale = (cam.length() / s.body.shape.bounding_radius_m()).powi(2);
-    let axis = cam.cross(sun).normalize();
-    let mut ratios = Vec::new();
-    for alpha_deg in [10.0, 30.0, 51.29, 75.0, 90.0, 120.0f64] {
-        let mut pose = cfg.pose;
-        pose.sun_position_m = glam::DQuat::from_axis_angle(axis, alpha_deg.to_radians())
-            * cam.normalize()
-            * sun.length();
-        let f = r.render(&red.scene, &pose, &red.settings).unwrap();
-        // Photons per second per m^2 in V at the camera, over the Sun's at the Moon.
-        let a_cam = s.camera.intrinsics.aperture_area_m2();
-        let moon_v = f.pl.iter().sum::<f64>() * v_red / a_cam;
-        let sun_v = s.sun.area_m2() * v_grey / pose.sun_position_m.length_squared();
-        let rendered = moon_v / sun_v * scale;
-        let real = allen_moon_p_psi(f.stats.phase_deg);
-        println!(
-            "phase {:6.2} deg: p Psi in V, lunar spectrum {rendered:.5}, Allen {real:.5}, ratio {:.3}",
-            f.stats.phase_deg,
-            rendered / real
-        );
-        ratios.push(rendered / real);
-    }
+    // The rendered p Psi in V with the spectrum (the (P/L) image is the grey one's; the
+    // spectrum enters through V's integral), against Allen's law, over phase.
+    let phases = [10.0, 30.0, 51.29, 75.0, 90.0, 120.0];
+    let ratios = ratios_to_allen(&cfg, &phases, v_red, v_grey, "in V, lunar spectrum");
     assert!(ratios.iter().all(|q| (0.95..1.2).contains(q)), "{ratios:?}");
 }

@@ -107,14 +107,7 @@ pub fn encode_png_gray(
     dn: &[u16],
     bit_depth: u32,
 ) -> Result<Vec<u8>, png::EncodingError> {
-    let gray = png::ColorType::Grayscale;
-    if bit_depth <= 8 {
-        let data: Vec<u8> = dn.iter().map(|&x| x.min(255) as u8).collect();
-        encode_png(width, height, gray, png::BitDepth::Eight, &data)
-    } else {
-        let data: Vec<u8> = dn.iter().flat_map(|&x| x.to_be_bytes()).collect();
-        encode_png(width, height, gray, png::BitDepth::Sixteen, &data)
-    }
+    encode_png_planes(width, height, dn, bit_depth, &[])
 }
 
 /// A camera's DN as `image.png`: one plane grey; three planes (a three-band camera's R, G,
@@ -130,6 +123,7 @@ pub fn encode_png_planes(
 ) -> Result<Vec<u8>, png::EncodingError> {
     let n = width * height;
     let planes = dn.len().checked_div(n).unwrap_or(1);
+    // One plane, or any count but three: grey, the planes stacked (`height` rows each).
     let (color, rows, samples) = if planes == 3 {
         let rgb: Vec<u16> = (0..n)
             .flat_map(|i| [dn[i], dn[n + i], dn[2 * n + i]])

@@ -368,10 +368,11 @@ fn chromatic_aberrations_move_and_blur_each_band_on_its_own() {
     assert_eq!(&dn[..n], &dn_sharp[..n]);
 }
 
-/// A grey screen cannot stimulate a colour camera yet: the stimulator section and the daemon
-/// refuse a camera of several bands by name, rather than driving its first band.
+/// A grey screen cannot stimulate a colour camera: the stimulator refuses a camera of several
+/// bands on a curve of one column by name, rather than driving its first band; and the
+/// daemon refuses several bands (its chain carries one signal image).
 #[test]
-fn the_stimulator_and_the_daemon_refuse_several_bands() {
+fn a_grey_screen_and_the_daemon_refuse_several_bands() {
     let text = std::fs::read_to_string("config/stimulator.toml").unwrap();
     let mono = text
         .lines()
@@ -385,11 +386,19 @@ fn the_stimulator_and_the_daemon_refuse_several_bands() {
         .find("\n[camera.noise]")
         .expect("a [camera.noise] table");
     let colour = format!("{}\n{bands}{}", &without[..at], &without[at..]);
-    let file = "config/stimulator.toml";
-    let (key, value) = refusal(&colour, file);
-    assert_eq!(
-        (key.as_str(), value.as_str()),
-        ("stimulator", "\"a camera of 3 bands\"")
+    // Read as if it were config/stimulator.toml: its paths resolve the same.
+    let cfg = config::parse(&colour, "config/stimulator.toml").unwrap();
+    let st = cfg.stimulator.as_ref().unwrap();
+    let cam = &cfg.scene.camera;
+    let err = optistim::stimulator::Stimulator::new(st, &cam.intrinsics, &cam.detector)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("example_gamma22")
+            && err.contains("1 F_eff columns")
+            && err.contains("3 bands"),
+        "{err}"
     );
     // Without the stimulator, the daemon's frame maker says why it cannot serve it.
     let spec = SceneSpec::default();

@@ -50,10 +50,10 @@ fn compare(cfg: &Config, calibration: Curve, truth: Curve) -> Comparison {
         &mut direct,
     );
 
-    let stim = Stimulator::with_curve(st, intr, det, Arc::new(calibration));
+    let stim = Stimulator::with_curve(st, intr, det, Arc::new(calibration)).unwrap();
     let shown = stim.process(&signal).unwrap();
     assert_eq!(shown.clips.above_max, 0);
-    let camera = SimulatedCamera::new(st, truth, intr, det);
+    let camera = SimulatedCamera::new(st, truth, intr, det).unwrap();
     let seen = camera.capture(&shown.screen_dn, 0).unwrap();
 
     let off = det.offset_dn;
@@ -136,7 +136,7 @@ fn a_replayed_curve_is_used_and_reported() {
     let signal = rendered_signal(&cfg);
     let mut stim = Stimulator::new(st, intr, det).unwrap();
     let a = stim.process(&signal).unwrap();
-    let old = stim.replay(Arc::new(wrong_curve()));
+    let old = stim.replay(Arc::new(wrong_curve())).unwrap();
     assert_eq!(old.id, "example_gamma22");
     let b = stim.process(&signal).unwrap();
     assert_eq!(a.calibration_id, "example_gamma22");
@@ -154,7 +154,7 @@ fn calibrating_the_simulated_screen_recovers_its_response() {
     let intr = &cfg.scene.camera.intrinsics;
     let st = cfg.stimulator.as_ref().unwrap();
     let truth = example(Interp::Pchip);
-    let camera = SimulatedCamera::new(st, truth.clone(), intr, det);
+    let camera = SimulatedCamera::new(st, truth.clone(), intr, det).unwrap();
     let mut bench = SimulatedBench::new(camera, st.screen_px);
     let run = calibrate(
         &mut bench,

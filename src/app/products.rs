@@ -183,6 +183,19 @@ pub fn with_unit(cards: &[Card], unit: &str, what: &str) -> Vec<Card> {
     c
 }
 
+/// The tEXt chunks of a camera's PNG: its bands' names and its mosaic's pattern. None for a
+/// monochrome camera, whose image.png stays the plain grey PNG (the CORTO server's bytes).
+pub fn png_text(det: &crate::detector::Detector) -> Vec<(&'static str, String)> {
+    let mut text = Vec::new();
+    if det.bands.len() > 1 {
+        text.push(("bands", band_names(det)));
+    }
+    if let Layout::Bayer(order) = det.layout {
+        text.push(("bayer_pattern", order.name().to_string()));
+    }
+    text
+}
+
 /// The frame's files in memory, named as in [`FILES`].
 pub fn encode(
     config: &Config,
@@ -206,14 +219,7 @@ pub fn encode(
         )));
     }
     let cards = cards(config, meta);
-    // A monochrome camera's image.png stays the plain grey PNG (the CORTO server's bytes).
-    let mut text = Vec::new();
-    if bands > 1 {
-        text.push(("bands", band_names(det)));
-    }
-    if let Layout::Bayer(order) = det.layout {
-        text.push(("bayer_pattern", order.name().to_string()));
-    }
+    let text = png_text(det);
     let png =
         crate::io::encode_png_planes(w, h, images.dn, det.saved_bits, &text).map_err(|source| {
             crate::io::IoError::Png {

@@ -161,9 +161,14 @@ pub fn run(
                 Bitpix::F64,
                 &with("W/m2", "effective flux density at the camera (Eq. 58)"),
             )?;
+            // A colour screen's three planes as an RGB PNG of its codes; the camera's image as
+            // image.png is (planes, or the raw mosaic with its pattern).
             let [sw, sh] = st.screen_px;
-            crate::io::write_png_gray(&out.join("screen.png"), sw, sh, &frame_st.screen_dn, 16)?;
-            crate::io::write_png_gray(&out.join("camera.png"), w, h, &seen.dn, det.saved_bits)?;
+            let screen = &frame_st.screen_dn;
+            crate::io::write_png_planes(&out.join("screen.png"), sw, sh, screen, 16, &[])?;
+            let text = products::png_text(det);
+            let camera = out.join("camera.png");
+            crate::io::write_png_planes(&camera, w, h, &seen.dn, det.saved_bits, &text)?;
             write_ms += t0.elapsed().as_secs_f64() * 1e3;
             Some(StimulatorSummary {
                 calibration_id: frame_st.calibration_id,

@@ -251,13 +251,6 @@ impl Validator<'_> {
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
         let settings = self.render(&raw.render, &body)?;
         let stimulator = match &raw.stimulator {
-            Some(_) if camera.detector.bands.len() > 1 => {
-                return self.err(
-                    "stimulator",
-                    format!("a camera of {} bands", camera.detector.bands.len()),
-                    "a monochrome camera (one band): colour screens are not built yet",
-                );
-            }
             Some(st) => Some(self.stimulator(st, &camera.intrinsics)?),
             None => None,
         };

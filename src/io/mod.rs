@@ -38,6 +38,18 @@ pub fn write_png_gray(
     write_png(path, encode_png_gray(width, height, dn, bit_depth))
 }
 
+/// Writes the PNG of [`encode_png_planes`]: one grey plane, three as RGB.
+pub fn write_png_planes(
+    path: &Path,
+    width: usize,
+    height: usize,
+    dn: &[u16],
+    bit_depth: u32,
+    text: &[(&str, String)],
+) -> Result<(), IoError> {
+    write_png(path, encode_png_planes(width, height, dn, bit_depth, text))
+}
+
 /// Writes an 8-bit RGB PNG (`rgb` holds 3 bytes per pixel).
 pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), IoError> {
     let (color, depth) = (png::ColorType::Rgb, png::BitDepth::Eight);

@@ -96,8 +96,8 @@ impl FrameMaker {
     }
 
     /// Replays another calibration curve from the next frame on; returns the old one (`None`
-    /// without a stimulator).
-    pub fn replay(&mut self, curve: Arc<Curve>) -> Option<Arc<Curve>> {
+    /// without a stimulator; an error, the old curve kept, when the stimulator refuses it).
+    pub fn replay(&mut self, curve: Arc<Curve>) -> Option<Result<Arc<Curve>, StimulatorError>> {
         self.stimulator.as_mut().map(|s| s.replay(curve))
     }
 

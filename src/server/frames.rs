@@ -284,7 +284,8 @@ impl FrameThread {
         let old = self
             .maker
             .replay(curve)
-            .expect("the daemon has a stimulator");
+            .expect("the daemon has a stimulator")
+            .map_err(|e| e.to_string())?;
         let inverse = self.maker.stimulator().expect("has one").inverse();
         let uploaded = match &mut self.present {
             Present::Gpu(p) => p.set_inverse(inverse).map_err(|e| e.to_string()),
@@ -294,7 +295,8 @@ impl FrameThread {
             Present::Cpu => Ok(()),
         };
         if let Err(e) = uploaded {
-            self.maker.replay(old);
+            // The old curve was in use a moment ago: taking it back cannot fail.
+            let _ = self.maker.replay(old);
             return Err(e);
         }
         *self

@@ -24,6 +24,8 @@
 //! F_eff -> DN is unique. Each curve has an id (the file stem) and a SHA-256 of its content, which
 //! every frame reports.
 
+use super::colour::{Crosstalk, PRIMARIES};
+use super::dither::Dither;
 use std::path::Path;
 
 /// Fewest measured points a curve may have.
@@ -87,6 +89,9 @@ pub struct Curve {
     pub dn_full_scale: f64,
     dn: Vec<f64>,
     channels: Vec<Channel>,
+    /// A colour screen's cross-talk, one row per camera band (by name): the band's F_eff per
+    /// unit of each channel's F_eff column [dimensionless], in column order.
+    pub crosstalk: Vec<(String, Vec<f64>)>,
 }
 
 /// Pixels clipped by the inversion, reported with every frame.
@@ -142,8 +147,30 @@ impl Curve {
             magic,
             provenance: prov,
             full_scale,
+            crosstalk,
         } = read_header(text).map_err(|(line, m)| bad(line, m))?;
         let (names, rows) = read_rows(bytes).map_err(|(line, m)| bad(line, m))?;
+        for (line, band, row) in &crosstalk {
+            if names.len() < 3 {
+                return Err(bad(
+                    *line,
+                    format!("crosstalk {band}: a grey screen (one F_eff column) has no cross-talk"),
+                ));
+            }
+            if row.len() != names.len() - 1 {
+                return Err(bad(
+                    *line,
+                    format!(
+                        "crosstalk {band}: {} values, the file has {} F_eff columns",
+                        row.len(),
+                        names.len() - 1
+                    ),
+                ));
+            }
+            if crosstalk.iter().filter(|(_, b, _)| b == band).count() > 1 {
+                return Err(bad(*line, format!("crosstalk {band}: given twice")));
+            }
+        }
         if !magic {
             return Err(bad(
                 1,
@@ -220,6 +247,7 @@ impl Curve {
             dn_full_scale: full_scale,
             dn,
             channels,
+            crosstalk: crosstalk.into_iter().map(|(_, b, r)| (b, r)).collect(),
         })
     }
 
@@ -313,7 +341,7 @@ impl Curve {
         feff: &[f64],
         width: usize,
         levels: u32,
-        dither: super::dither::Dither,
+        dither: Dither,
         out: &mut Vec<u16>,
     ) -> ClipCounts {
         self.inverse(c, levels).apply(feff, width, dither, out)
@@ -377,13 +405,11 @@ impl Inverse {
         &self,
         feff: &[f64],
         width: usize,
-        dither: super::dither::Dither,
+        dither: Dither,
         out: &mut Vec<u16>,
     ) -> ClipCounts {
         use rayon::prelude::*;
         let width = width.max(1);
-        let c_lo = self.code_lo;
-        let c_hi = self.code_lo + (self.feff.len() - 1) as f64 / INVERSE_SUBSTEPS;
         out.clear();
         out.resize(feff.len(), 0);
         out.par_chunks_mut(width)
@@ -392,16 +418,23 @@ impl Inverse {
             .map(|(j, (row_out, row))| {
                 let mut clips = ClipCounts::default();
                 for (i, (o, &f)) in row_out.iter_mut().zip(row).enumerate() {
-                    let v = match clips.classify(f, self.range) {
-                        Place::Inside => dither.quantise(self.code(f), i, j).clamp(c_lo, c_hi),
-                        Place::Above => c_hi,
-                        Place::Below => c_lo,
-                    };
-                    *o = v as u16;
+                    *o = self.quantise(clips.classify(f, self.range), f, dither, i, j);
                 }
                 clips
             })
             .reduce(ClipCounts::default, ClipCounts::merge)
+    }
+
+    /// The code of `f` at pixel `(i, j)` placed `place` against the curve's range: rounded
+    /// or dithered inside, the end codes outside.
+    #[inline(always)]
+    fn quantise(&self, place: Place, f: f64, dither: Dither, i: usize, j: usize) -> u16 {
+        let (c_lo, c_hi) = self.codes();
+        (match place {
+            Place::Inside => dither.quantise(self.code(f), i, j).clamp(c_lo, c_hi),
+            Place::Above => c_hi,
+            Place::Below => c_lo,
+        }) as u16
     }
 
     /// The clip counts [`Inverse::apply`] would report for `feff`, without the codes (for a
@@ -420,7 +453,74 @@ impl Inverse {
     }
 }
 
+/// A colour screen's codes for a region's F_eff of every camera band (`bands` planes of
+/// `width`-pixel rows, band after band): per pixel the primaries' F_eff solved through the
+/// cross-talk ([`Crosstalk::primaries`]), each inverted through its own curve (`inverses`: R,
+/// G, B) and rounded or dithered as [`Inverse::apply`] does. Writes three planes (R, G, B) of
+/// the region's size. A pixel is counted once: `black` when every band is dark, `above_max`
+/// when a primary exceeds its maximum, else `below_dark` when one falls below its dark level
+/// (a colour outside the primaries' gamut counts here too).
+///
+/// `dither_shift`: the dither pattern is read at `(i >> shift, j >> shift)`. A Bayer camera
+/// seeing the screen pixel for pixel records each band on one phase of the 2 x 2 lattice;
+/// the 8 x 8 ordered pattern puts a quarter of its thresholds on each phase (those below
+/// 1/4 on one), so every band would see a biased quarter (-0.5 % on R, measured). With a
+/// shift of 1 each phase sees the whole pattern.
+pub fn apply_colour(
+    crosstalk: &Crosstalk,
+    inverses: &[Inverse],
+    region: &[f64],
+    width: usize,
+    (dither, dither_shift): (Dither, u32),
+    out: &mut Vec<u16>,
+) -> ClipCounts {
+    use rayon::prelude::*;
+    let width = width.max(1);
+    let n = region.len() / crosstalk.bands().max(1);
+    out.clear();
+    out.resize(PRIMARIES * n, 0);
+    let (r, rest) = out.split_at_mut(n);
+    let (g, b) = rest.split_at_mut(n);
+    r.par_chunks_mut(width)
+        .zip(g.par_chunks_mut(width))
+        .zip(b.par_chunks_mut(width))
+        .enumerate()
+        .map(|(j, ((r, g), b))| {
+            let mut clips = ClipCounts::default();
+            for i in 0..r.len() {
+                let (f, places) =
+                    clips.classify_colour(crosstalk, inverses, region, n, j * width + i);
+                let (di, dj) = (i >> dither_shift, j >> dither_shift);
+                r[i] = inverses[0].quantise(places[0], f[0], dither, di, dj);
+                g[i] = inverses[1].quantise(places[1], f[1], dither, di, dj);
+                b[i] = inverses[2].quantise(places[2], f[2], dither, di, dj);
+            }
+            clips
+        })
+        .reduce(ClipCounts::default, ClipCounts::merge)
+}
+
+/// The clip counts [`apply_colour`] would report, without the codes (for a frame the GPU
+/// inverts).
+pub fn count_colour_clips(
+    crosstalk: &Crosstalk,
+    inverses: &[Inverse],
+    region: &[f64],
+) -> ClipCounts {
+    use rayon::prelude::*;
+    let n = region.len() / crosstalk.bands().max(1);
+    (0..n)
+        .into_par_iter()
+        .with_min_len(4096)
+        .fold(ClipCounts::default, |mut clips, p| {
+            clips.classify_colour(crosstalk, inverses, region, n, p);
+            clips
+        })
+        .reduce(ClipCounts::default, ClipCounts::merge)
+}
+
 /// Where an F_eff value falls against the screen's range.
+#[derive(Clone, Copy)]
 enum Place {
     Inside,
     Below,
@@ -448,6 +548,38 @@ impl ClipCounts {
         }
     }
 
+    /// Solves pixel `p` of a region (`n` pixels per band plane) for the primaries' F_eff and
+    /// places each against its curve's range, counting the pixel once ([`apply_colour`]).
+    #[inline(always)]
+    fn classify_colour(
+        &mut self,
+        crosstalk: &Crosstalk,
+        inverses: &[Inverse],
+        region: &[f64],
+        n: usize,
+        p: usize,
+    ) -> ([f64; PRIMARIES], [Place; PRIMARIES]) {
+        let f = crosstalk.primaries(|b| region[b * n + p]);
+        let places = [0, 1, 2].map(|c| {
+            let (lo, hi) = inverses[c].range;
+            if f[c] >= lo && f[c] <= hi {
+                Place::Inside
+            } else if f[c] > hi {
+                Place::Above
+            } else {
+                Place::Below
+            }
+        });
+        if (0..crosstalk.bands()).all(|b| region[b * n + p] == 0.0) {
+            self.black += 1;
+        } else if places.iter().any(|p| matches!(p, Place::Above)) {
+            self.above_max += 1;
+        } else if places.iter().any(|p| matches!(p, Place::Below)) {
+            self.below_dark += 1;
+        }
+        (f, places)
+    }
+
     fn merge(a: ClipCounts, b: ClipCounts) -> ClipCounts {
         ClipCounts {
             black: a.black + b.black,
@@ -462,6 +594,8 @@ struct Header {
     magic: bool,
     provenance: Provenance,
     full_scale: Option<f64>,
+    /// `(line, band, row)` of each `# crosstalk BAND: x, y, z` line.
+    crosstalk: Vec<(usize, String, Vec<f64>)>,
 }
 
 /// Reads the `#` lines: the format line, provenance and `dn_full_scale`. Errors carry the line.
@@ -470,6 +604,7 @@ fn read_header(text: &str) -> Result<Header, (usize, String)> {
         magic: false,
         provenance: Provenance::default(),
         full_scale: None,
+        crosstalk: Vec::new(),
     };
     for (n, raw) in text.lines().enumerate() {
         let Some(c) = raw.trim().strip_prefix('#') else {
@@ -490,6 +625,23 @@ fn read_header(text: &str) -> Result<Header, (usize, String)> {
             continue;
         };
         let v = v.trim().to_string();
+        if let Some(band) = k.trim().strip_prefix("crosstalk ") {
+            let row = v
+                .split(',')
+                .map(|x| {
+                    let x = x.trim();
+                    x.parse::<f64>()
+                        .ok()
+                        .filter(|x| x.is_finite() && *x >= 0.0)
+                        .ok_or((
+                            line,
+                            format!("crosstalk {}: \"{x}\" is not a number >= 0", band.trim()),
+                        ))
+                })
+                .collect::<Result<Vec<f64>, _>>()?;
+            h.crosstalk.push((line, band.trim().to_string(), row));
+            continue;
+        }
         match k.trim() {
             "date" => h.provenance.date = v,
             "facility" => h.provenance.facility = v,

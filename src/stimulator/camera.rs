@@ -4,27 +4,36 @@
 //! collimator's mapping of screen pixels onto camera pixels -> signal `S = F_eff / k`
 //! (Eq. 58, the screen taken to emit at the wavelength that defines F_eff) -> the same
 //! detector model as the renderer (exposure, noise, full well, ADC).
+//!
+//! A camera of several bands looks at a colour screen: each band gets `F_b = sum_c X[b][c]
+//! f_c` of the primaries' emitted F_eff through the screen's *true* cross-talk matrix
+//! ([`super::colour`]), its signal is `F_b / k_b` with its own band's `k`, and the detector
+//! hands out its planes or its Bayer mosaic as the renderer's camera does.
 
 use super::calibration::Curve;
+use super::colour::Crosstalk;
 use super::screen::Resampler;
-use super::{StimulatorConfig, StimulatorError, feff_factor};
+use super::{StimulatorConfig, StimulatorError, feff_factors};
 use crate::camera::Intrinsics;
 use crate::detector::Detector;
 
 /// What the simulated camera saw.
 #[derive(Clone, Debug)]
 pub struct Capture {
-    /// F_eff reaching each camera pixel [W/m^2].
+    /// F_eff reaching each camera pixel [W/m^2], one plane per band.
     pub feff_w_m2: Vec<f64>,
-    /// Signal [e-/s].
+    /// Signal [e-/s], one plane per band.
     pub signal_e_per_s: Vec<f64>,
-    /// The camera's image [DN].
+    /// The camera's image [DN]: one plane per band, or the Bayer mosaic.
     pub dn: Vec<u16>,
 }
 
 pub struct SimulatedCamera {
-    /// F_eff the screen emits at each code (its true response, sampled once).
-    emitted_per_code: Vec<f64>,
+    /// F_eff each primary of the screen emits at each code (its true response, sampled once):
+    /// one table for a grey screen, R, G, B for a colour one.
+    emitted_per_code: Vec<Vec<f64>>,
+    /// A colour screen's true cross-talk with the camera's bands.
+    colour: Option<Crosstalk>,
     camera_px: [usize; 2],
     screen_px: [usize; 2],
     origin_px: [usize; 2],
@@ -32,18 +41,22 @@ pub struct SimulatedCamera {
     /// Per region pixel: non-uniformity gain times collimator transmittance.
     gain: Vec<f64>,
     detector: Detector,
-    k: f64,
+    /// `k` of Eq. 60 per band.
+    ks: Vec<f64>,
 }
 
 impl SimulatedCamera {
     /// The camera of `intrinsics` and `detector` looking at the screen of `config` whose true
-    /// response is `true_response`.
+    /// response is `true_response` (with, for a camera of several bands, its true cross-talk).
     pub fn new(
         config: &StimulatorConfig,
         true_response: Curve,
         intrinsics: &Intrinsics,
         detector: &Detector,
-    ) -> SimulatedCamera {
+    ) -> Result<SimulatedCamera, StimulatorError> {
+        let colour = (detector.bands.len() > 1)
+            .then(|| Crosstalk::for_camera(&true_response, detector))
+            .transpose()?;
         let camera_px = [intrinsics.width_px as usize, intrinsics.height_px as usize];
         let resampler = Resampler::new(camera_px, config.scale);
         let [rw, rh] = resampler.region_px();
@@ -57,16 +70,20 @@ impl SimulatedCamera {
                 (1.0 - (1.0 - config.corner_gain) * r2) * config.collimator_transmittance
             })
             .collect();
-        SimulatedCamera {
-            emitted_per_code: emitted_per_code(&true_response, config.levels()),
+        let primaries = if colour.is_some() { 3 } else { 1 };
+        Ok(SimulatedCamera {
+            emitted_per_code: (0..primaries)
+                .map(|c| emitted_per_code(&true_response, c, config.levels()))
+                .collect(),
+            colour,
             camera_px,
             screen_px: config.screen_px,
             origin_px: config.origin_px,
             resampler,
             gain,
             detector: detector.clone(),
-            k: feff_factor(detector, intrinsics),
-        }
+            ks: feff_factors(detector, intrinsics),
+        })
     }
 
     /// Loads the true response named by `config` (the calibration when none is named).
@@ -77,7 +94,7 @@ impl SimulatedCamera {
     ) -> Result<SimulatedCamera, StimulatorError> {
         let path = config.true_response.as_ref().unwrap_or(&config.calibration);
         let curve = Curve::load(path, config.interp)?;
-        let mut camera = SimulatedCamera::new(config, curve, intrinsics, detector);
+        let mut camera = SimulatedCamera::new(config, curve, intrinsics, detector)?;
         if let Some(file) = &config.non_uniformity_map {
             let bad = |message: String| StimulatorError::NonUniformity {
                 file: file.display().to_string(),
@@ -115,12 +132,18 @@ impl SimulatedCamera {
         &mut self.detector
     }
 
-    /// `k` of Eq. 60 for this camera.
-    pub fn k(&self) -> f64 {
-        self.k
+    /// `k` of Eq. 60 of each of this camera's bands.
+    pub fn ks(&self) -> &[f64] {
+        &self.ks
     }
 
-    /// Images a whole screen of DN codes (`screen_px`, row-major).
+    /// The screen's primaries: 1 (grey) or 3 (R, G, B).
+    pub fn primaries(&self) -> usize {
+        self.emitted_per_code.len()
+    }
+
+    /// Images a whole screen of DN codes (`screen_px`, row-major; a colour screen's three
+    /// planes R, G, B one after the other).
     pub fn capture(&self, screen_dn: &[u16], frame_id: u64) -> Result<Capture, StimulatorError> {
         self.capture_exposed(screen_dn, frame_id, None)
     }
@@ -134,37 +157,76 @@ impl SimulatedCamera {
         exposure_s: Option<f64>,
     ) -> Result<Capture, StimulatorError> {
         let [sw, sh] = self.screen_px;
-        if screen_dn.len() != sw * sh {
+        let primaries = self.emitted_per_code.len();
+        if screen_dn.len() != sw * sh * primaries {
             return Err(StimulatorError::ImageSize {
                 got: screen_dn.len(),
-                want: sw * sh,
+                want: sw * sh * primaries,
             });
         }
         let [rw, rh] = self.resampler.region_px();
         let [ox, oy] = self.origin_px;
-        let table = &self.emitted_per_code;
-        let mut emitted = Vec::with_capacity(rw * rh);
-        for r in 0..rh {
-            if r % 64 == 0 {
-                crate::background::checkpoint();
-            }
-            let row = &screen_dn[(oy + r) * sw + ox..(oy + r) * sw + ox + rw];
-            for (i, &code) in row.iter().enumerate() {
-                let f = table[(code as usize).min(table.len() - 1)];
-                emitted.push(f * self.gain[r * rw + i]);
-            }
+        let tables = &self.emitted_per_code;
+        // F_eff emitted by each primary at each region pixel, the non-uniformity applied.
+        let emitted: Vec<Vec<f64>> = (0..primaries)
+            .map(|c| {
+                let table = &tables[c];
+                let plane = &screen_dn[c * sw * sh..(c + 1) * sw * sh];
+                let mut out = Vec::with_capacity(rw * rh);
+                for r in 0..rh {
+                    if r % 64 == 0 {
+                        crate::background::checkpoint();
+                    }
+                    let row = &plane[(oy + r) * sw + ox..(oy + r) * sw + ox + rw];
+                    for (i, &code) in row.iter().enumerate() {
+                        let f = table[(code as usize).min(table.len() - 1)];
+                        out.push(f * self.gain[r * rw + i]);
+                    }
+                }
+                out
+            })
+            .collect();
+        // Each band's F_eff on the camera grid: through the cross-talk for a colour screen.
+        let n = self.camera_px[0] * self.camera_px[1];
+        let mut feff_w_m2 = Vec::with_capacity(n * self.ks.len());
+        let mut band_region = Vec::new();
+        let mut plane = Vec::new();
+        for b in 0..self.ks.len() {
+            let region = match &self.colour {
+                None => &emitted[0],
+                Some(ct) => {
+                    band_region.clear();
+                    band_region.extend(
+                        (0..rw * rh)
+                            .map(|p| ct.band(b, &[emitted[0][p], emitted[1][p], emitted[2][p]])),
+                    );
+                    &band_region
+                }
+            };
+            self.resampler.to_camera(region, &mut plane);
+            feff_w_m2.extend_from_slice(&plane);
         }
-        let mut feff_w_m2 = Vec::new();
-        self.resampler.to_camera(&emitted, &mut feff_w_m2);
         crate::background::checkpoint();
-        let signal_e_per_s: Vec<f64> = feff_w_m2.iter().map(|f| f / self.k).collect();
+        let signal_e_per_s: Vec<f64> = feff_w_m2
+            .iter()
+            .enumerate()
+            .map(|(i, f)| f / self.ks[i / n.max(1)])
+            .collect();
         let size = (self.camera_px[0], self.camera_px[1]);
         let mut detector = std::borrow::Cow::Borrowed(&self.detector);
         if let Some(t) = exposure_s {
             detector.to_mut().exposure_s = t;
         }
         let mut dn = Vec::new();
-        detector.expose(&signal_e_per_s, size, frame_id, &mut dn);
+        if self.ks.len() == 1 {
+            detector.expose(&signal_e_per_s, size, frame_id, &mut dn);
+        } else {
+            // The signal is already each band's: the detector takes it with factors of 1.
+            let ones = vec![1.0; self.ks.len()];
+            let band = |b: usize| &signal_e_per_s[b * n..(b + 1) * n];
+            let mut signal = Vec::new();
+            detector.image_into(band, size, &ones, frame_id, &mut signal, &mut dn);
+        }
         Ok(Capture {
             feff_w_m2,
             signal_e_per_s,
@@ -173,10 +235,11 @@ impl SimulatedCamera {
     }
 }
 
-/// F_eff a screen with response `curve` emits at each of its `levels` codes.
-fn emitted_per_code(curve: &Curve, levels: u32) -> Vec<f64> {
+/// F_eff primary `channel` of a screen with response `curve` emits at each of its `levels`
+/// codes.
+fn emitted_per_code(curve: &Curve, channel: usize, levels: u32) -> Vec<f64> {
     let top = (levels - 1) as f64;
     (0..levels)
-        .map(|c| curve.feff_at(0, c as f64 / top * curve.dn_full_scale))
+        .map(|c| curve.feff_at(channel, c as f64 / top * curve.dn_full_scale))
         .collect()
 }

@@ -10,10 +10,16 @@
 //! stand-in (screen DN -> the screen's true response -> collimator -> detector);
 //! [`calibrate`] measures a curve through any [`calibrate::Bench`]. The GPU does the inversion
 //! step again for the screen in [`crate::display`].
+//!
+//! A camera of several bands looks at a colour screen ([`colour`]): each band's signal gives
+//! that band's F_eff (its own `k`), the F_eff planes are mapped onto the screen region band by
+//! band, and per pixel the three primaries' F_eff are solved through the cross-talk matrix and
+//! inverted through each primary's curve. The screen's DN are then three planes (R, G, B).
 
 pub mod calibrate;
 pub mod calibration;
 pub mod camera;
+pub mod colour;
 pub mod dither;
 pub mod screen;
 
@@ -21,6 +27,7 @@ use crate::camera::Intrinsics;
 use crate::detector::Detector;
 use crate::radiometry::{C, H, max_qe_t_lambda};
 use calibration::{CalibrationError, ClipCounts, Curve, Interp, Inverse};
+use colour::Crosstalk;
 use dither::Dither;
 use screen::Resampler;
 use serde::Serialize;
@@ -74,6 +81,8 @@ pub enum StimulatorError {
     Measurement(String),
     #[error("screen non-uniformity map {file}: {message}")]
     NonUniformity { file: String, message: String },
+    #[error("colour screen: {0}")]
+    Colour(String),
 }
 
 /// Time per stimulator stage [ms]. With the one-to-one mapping `feff` includes the region
@@ -88,13 +97,14 @@ pub struct StimulatorTimings {
 /// One frame through the stimulator chain.
 #[derive(Clone, Debug)]
 pub struct StimulatorFrame {
-    /// F_eff per camera pixel [W/m^2] (Eq. 58).
+    /// F_eff per camera pixel [W/m^2] (Eq. 58): one plane per camera band, band after band.
     pub feff_w_m2: Vec<f64>,
     /// F_eff the screen region must emit [W/m^2]: mapped onto screen pixels and divided by
-    /// the collimator transmittance (what the GPU presenter's LUT pass takes).
+    /// the collimator transmittance (what the GPU presenter's LUT pass takes), one plane per
+    /// camera band.
     pub region_feff_w_m2: Vec<f64>,
     /// The whole screen in DN codes (`screen_px`, row-major; the image in its region, the
-    /// rest at code 0).
+    /// rest at code 0): one plane for a grey screen, three (R, G, B) for a colour one.
     pub screen_dn: Vec<u16>,
     pub clips: ClipCounts,
     /// The curve that made this frame: its id and the SHA-256 of its file.
@@ -108,9 +118,15 @@ pub struct StimulatorFrame {
 pub struct Stimulator {
     config: StimulatorConfig,
     curve: Arc<Curve>,
-    /// The curve's inverse at the screen's depth, rebuilt when the curve changes.
-    inverse: Inverse,
-    k: f64,
+    /// The inverse of each primary the screen drives (one for a grey screen, R, G, B for a
+    /// colour one) at the screen's depth, rebuilt when the curve changes.
+    inverses: Vec<Inverse>,
+    /// `k` of Eq. 60 per camera band.
+    ks: Vec<f64>,
+    /// A colour screen's cross-talk with the camera's bands (cameras of several bands).
+    colour: Option<Crosstalk>,
+    /// The camera's bands (for replayed curves' cross-talk).
+    detector: Detector,
     camera_px: [usize; 2],
     resampler: Resampler,
 }
@@ -123,47 +139,89 @@ impl Stimulator {
         detector: &Detector,
     ) -> Result<Stimulator, StimulatorError> {
         let curve = Curve::load(&config.calibration, config.interp)?;
-        Ok(Stimulator::with_curve(
-            config,
-            intrinsics,
-            detector,
-            Arc::new(curve),
-        ))
+        Stimulator::with_curve(config, intrinsics, detector, Arc::new(curve))
     }
 
+    /// A camera of one band on a grey screen (a colour curve's first column), or of several
+    /// bands on a colour screen whose curve carries the cross-talk with every band.
     pub fn with_curve(
         config: &StimulatorConfig,
         intrinsics: &Intrinsics,
         detector: &Detector,
         curve: Arc<Curve>,
-    ) -> Stimulator {
+    ) -> Result<Stimulator, StimulatorError> {
         let camera_px = [intrinsics.width_px as usize, intrinsics.height_px as usize];
-        Stimulator {
+        let (colour, inverses) = Stimulator::drive(&curve, detector, config.levels())?;
+        Ok(Stimulator {
             config: config.clone(),
-            inverse: curve.inverse(0, config.levels()),
+            inverses,
+            colour,
             curve,
-            k: feff_factor(detector, intrinsics),
+            ks: feff_factors(detector, intrinsics),
+            detector: detector.clone(),
             camera_px,
             resampler: Resampler::new(camera_px, config.scale),
+        })
+    }
+
+    /// What `curve` drives for `detector`'s bands: a grey screen's one inverse, or a colour
+    /// screen's cross-talk and three inverses.
+    fn drive(
+        curve: &Curve,
+        detector: &Detector,
+        levels: u32,
+    ) -> Result<(Option<Crosstalk>, Vec<Inverse>), StimulatorError> {
+        if detector.bands.len() == 1 {
+            return Ok((None, vec![curve.inverse(0, levels)]));
         }
+        let colour = Crosstalk::for_camera(curve, detector)?;
+        let inverses = (0..colour::PRIMARIES)
+            .map(|c| curve.inverse(c, levels))
+            .collect();
+        Ok((Some(colour), inverses))
     }
 
     pub fn config(&self) -> &StimulatorConfig {
         &self.config
     }
 
-    /// `k` of Eq. 60 for the flight camera [W m^-2 per e-/s].
+    /// `k` of Eq. 60 for the flight camera [W m^-2 per e-/s] (its first band's).
     pub fn k(&self) -> f64 {
-        self.k
+        self.ks[0]
+    }
+
+    /// `k` of Eq. 60 of each camera band.
+    pub fn ks(&self) -> &[f64] {
+        &self.ks
+    }
+
+    /// A colour screen's cross-talk with the camera's bands.
+    pub fn colour(&self) -> Option<&Crosstalk> {
+        self.colour.as_ref()
     }
 
     pub fn resampler(&self) -> &Resampler {
         &self.resampler
     }
 
-    /// The current curve's inverse at the screen's depth (what the GPU presenter tabulates).
+    /// The current curve's inverse at the screen's depth (what the GPU presenter tabulates;
+    /// a colour screen's red primary).
     pub fn inverse(&self) -> &Inverse {
-        &self.inverse
+        &self.inverses[0]
+    }
+
+    /// How far the dither pattern is spread ([`calibration::apply_colour`]): 1 for a Bayer
+    /// camera on a colour screen, so that each of its bands sees the whole pattern; else 0.
+    pub fn dither_shift(&self) -> u32 {
+        match (&self.colour, self.detector.layout) {
+            (Some(_), crate::detector::Layout::Bayer(_)) => 1,
+            _ => 0,
+        }
+    }
+
+    /// The inverse of each primary the screen drives: one, or R, G, B.
+    pub fn inverses(&self) -> &[Inverse] {
+        &self.inverses
     }
 
     /// The curve in use.
@@ -172,9 +230,11 @@ impl Stimulator {
     }
 
     /// Replays another curve from the next frame on, without a restart; returns the old one.
-    pub fn replay(&mut self, curve: Arc<Curve>) -> Arc<Curve> {
-        self.inverse = curve.inverse(0, self.config.levels());
-        std::mem::replace(&mut self.curve, curve)
+    /// Refused (the old curve stays) when a colour camera's curve lacks its cross-talk.
+    pub fn replay(&mut self, curve: Arc<Curve>) -> Result<Arc<Curve>, StimulatorError> {
+        (self.colour, self.inverses) =
+            Stimulator::drive(&curve, &self.detector, self.config.levels())?;
+        Ok(std::mem::replace(&mut self.curve, curve))
     }
 
     /// One frame: `signal_e_per_s` is the flight camera's signal image (row-major).
@@ -189,15 +249,28 @@ impl Stimulator {
         let t0 = Instant::now();
         let [rw, rh] = self.resampler.region_px();
         let mut region = Vec::new();
-        frame.clips =
-            self.inverse
-                .apply(&frame.region_feff_w_m2, rw, self.config.dither, &mut region);
+        frame.clips = match &self.colour {
+            None => {
+                self.inverses[0].apply(&frame.region_feff_w_m2, rw, self.config.dither, &mut region)
+            }
+            Some(ct) => calibration::apply_colour(
+                ct,
+                &self.inverses,
+                &frame.region_feff_w_m2,
+                rw,
+                (self.config.dither, self.dither_shift()),
+                &mut region,
+            ),
+        };
         let [sw, sh] = self.config.screen_px;
         let [ox, oy] = self.config.origin_px;
-        frame.screen_dn = vec![0u16; sw * sh];
-        for (r, row) in region.chunks(rw).enumerate().take(rh) {
-            let dst = (oy + r) * sw + ox;
-            frame.screen_dn[dst..dst + rw].copy_from_slice(row);
+        let planes = self.inverses.len();
+        frame.screen_dn = vec![0u16; sw * sh * planes];
+        for (c, plane) in region.chunks(rw * rh).enumerate() {
+            for (r, row) in plane.chunks(rw).enumerate() {
+                let dst = c * sw * sh + (oy + r) * sw + ox;
+                frame.screen_dn[dst..dst + rw].copy_from_slice(row);
+            }
         }
         frame.timings_ms.invert = ms(t0);
     }
@@ -207,14 +280,21 @@ impl Stimulator {
     pub fn prepare(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
         let mut frame = self.region(signal_e_per_s)?;
         let t0 = Instant::now();
-        frame.clips = self.inverse.count_clips(&frame.region_feff_w_m2);
+        frame.clips = match &self.colour {
+            None => self.inverses[0].count_clips(&frame.region_feff_w_m2),
+            Some(ct) => {
+                calibration::count_colour_clips(ct, &self.inverses, &frame.region_feff_w_m2)
+            }
+        };
         frame.timings_ms.invert = ms(t0);
         Ok(frame)
     }
 
-    /// F_eff (Eq. 58) and the region's F_eff, divided by the collimator transmittance.
+    /// F_eff (Eq. 58) and the region's F_eff, divided by the collimator transmittance, band
+    /// after band.
     fn region(&self, signal_e_per_s: &[f64]) -> Result<StimulatorFrame, StimulatorError> {
-        let want = self.camera_px[0] * self.camera_px[1];
+        let n = self.camera_px[0] * self.camera_px[1];
+        let want = n * self.ks.len();
         if signal_e_per_s.len() != want {
             return Err(StimulatorError::ImageSize {
                 got: signal_e_per_s.len(),
@@ -229,18 +309,29 @@ impl Stimulator {
         if self.resampler.is_identity() {
             // One pass for both images (one to one: the region is F_eff / T).
             use rayon::prelude::*;
-            let k = self.k;
+            let ks = &self.ks;
             signal_e_per_s
                 .par_iter()
-                .map(|s| (s * k, s * k * gain))
+                .enumerate()
+                .map(|(i, s)| {
+                    let k = ks[i / n.max(1)];
+                    (s * k, s * k * gain)
+                })
                 .unzip_into_vecs(&mut feff_w_m2, &mut region_feff_w_m2);
             t.feff = ms(t0);
         } else {
-            feff(signal_e_per_s, self.k, &mut feff_w_m2);
+            feff_w_m2.reserve(want);
+            let mut plane = Vec::new();
+            for (s, &k) in signal_e_per_s.chunks(n.max(1)).zip(&self.ks) {
+                feff(s, k, &mut plane);
+                feff_w_m2.extend_from_slice(&plane);
+            }
             t.feff = ms(t0);
             let t0 = Instant::now();
-            self.resampler
-                .to_screen(&feff_w_m2, gain, &mut region_feff_w_m2);
+            for f in feff_w_m2.chunks(n.max(1)) {
+                self.resampler.to_screen(f, gain, &mut plane);
+                region_feff_w_m2.extend_from_slice(&plane);
+            }
             t.resample = ms(t0);
         }
         Ok(StimulatorFrame {
@@ -260,11 +351,20 @@ fn ms(t: Instant) -> f64 {
 }
 
 /// `k` of Eq. 60 [W m^-2 per e-/s]: `h c / (A_cam max(QE T lambda))`, of the camera's
-/// (first) band: a grey screen stimulates a monochrome camera (the configuration refuses a
-/// multi-band camera with a stimulator).
+/// (first) band.
 pub fn feff_factor(detector: &Detector, intrinsics: &Intrinsics) -> f64 {
-    let b = detector.band();
-    H * C / (intrinsics.aperture_area_m2() * max_qe_t_lambda(&b.qe, &b.transmittance))
+    feff_factors(detector, intrinsics)[0]
+}
+
+/// `k` of Eq. 60 of each of the camera's bands, with that band's QE and transmittance: each
+/// band's F_eff is the flux at its own peak of `QE T lambda` that gives its signal.
+pub fn feff_factors(detector: &Detector, intrinsics: &Intrinsics) -> Vec<f64> {
+    let area = intrinsics.aperture_area_m2();
+    detector
+        .bands
+        .iter()
+        .map(|b| H * C / (area * max_qe_t_lambda(&b.qe, &b.transmittance)))
+        .collect()
 }
 
 /// F_eff per pixel [W/m^2] from the signal per pixel [e-/s] (Eq. 58), in parallel.

@@ -7,6 +7,11 @@
 // of a display target, or as the integer code into the off-screen buffer (compute).
 // The same arithmetic as stimulator::calibration::Inverse::apply, to within the table's
 // interpolation error (checked when the table is built, display::DirectTable).
+//
+// A colour screen (stimulator::colour): `feff` holds one plane per camera band; per pixel the
+// primaries' F_eff are solved through the cross-talk's (pseudo-)inverse P, and each primary
+// goes through its own direct table (the three concatenated in `table`), as
+// stimulator::calibration::apply_colour does. Its parameters are in `colour` (below).
 
 struct Params {
     region_origin: vec2<u32>,
@@ -36,6 +41,11 @@ override dither_kind: u32 = 0u;
 @group(0) @binding(2) var<uniform> p: Params;
 // The 64 x 64 blue-noise thresholds, (rank + 0.5) / 4096 (stimulator::dither::blue_noise).
 @group(0) @binding(3) var<storage, read> noise: array<f32>;
+// A colour screen's parameters, as u32 words (floats by bit pattern):
+// [0] bands (0: a grey screen), [1] dither shift, [2..4] unused;
+// [4 + 8 c ..]: primary c's code_lo, code_hi, f_lo, f_hi, 1 / (f_hi - f_lo), table offset,
+// table entries, unused; [28 + c bands + b]: P[c][b].
+@group(0) @binding(4) var<storage, read> colour: array<u32>;
 
 // The 8 x 8 Bayer index at (x, y), from its bits (interleaved x^y and y, reversed): the
 // same matrix as stimulator::dither, without a dynamically indexed constant array (which
@@ -54,6 +64,59 @@ fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
     return vec4<f32>(x, y, 0.0, 1.0);
 }
 
+
+// The dither threshold at region pixel q.
+fn threshold(q: vec2<u32>) -> f32 {
+    var t = 0.5;
+    if dither_kind == 1u {
+        t = (f32(bayer8(q.x, q.y)) + 0.5) / 64.0;
+    } else if dither_kind == 2u {
+        t = noise[(q.y % 64u) * 64u + q.x % 64u];
+    }
+    return t;
+}
+
+fn cf(i: u32) -> f32 {
+    return bitcast<f32>(colour[i]);
+}
+
+// Primary c's code for its F_eff f with dither threshold t.
+fn primary_code(c: u32, f: f32, t: f32) -> f32 {
+    let base = 4u + 8u * c;
+    let code_lo = cf(base);
+    let code_hi = cf(base + 1u);
+    if f > cf(base + 3u) {
+        return code_hi;
+    }
+    if !(f >= cf(base + 2u)) {
+        return code_lo;
+    }
+    let off = colour[base + 5u];
+    let n = colour[base + 6u];
+    let u = sqrt(sqrt(clamp((f - cf(base + 2u)) * cf(base + 4u), 0.0, 1.0)));
+    let x = u * f32(n - 1u);
+    let k = min(u32(x), n - 2u);
+    let code = mix(table[off + k], table[off + k + 1u], x - f32(k));
+    return clamp(floor(code + t), code_lo, code_hi);
+}
+
+// A colour screen's R, G, B codes at fragment position `pos` (0 outside the image region).
+fn screen_rgb(pos: vec4<f32>) -> vec3<f32> {
+    let q = vec2<u32>(floor(pos.xy * p.view_scale)) - p.region_origin;
+    if q.x >= p.region_size.x || q.y >= p.region_size.y {
+        return vec3<f32>(0.0);
+    }
+    let bands = colour[0];
+    let n = p.region_size.x * p.region_size.y;
+    let i = q.y * p.region_size.x + q.x;
+    var f = vec3<f32>(0.0);
+    for (var b = 0u; b < bands; b++) {
+        let v = feff[b * n + i];
+        f += vec3<f32>(cf(28u + b), cf(28u + bands + b), cf(28u + 2u * bands + b)) * v;
+    }
+    let t = threshold(q >> vec2<u32>(colour[1]));
+    return vec3<f32>(primary_code(0u, f.x, t), primary_code(1u, f.y, t), primary_code(2u, f.z, t));
+}
 
 // The fractional code showing f (f_lo <= f <= f_hi).
 fn code_of(f: f32) -> f32 {
@@ -75,13 +138,7 @@ fn screen_code(pos: vec4<f32>) -> f32 {
     if f > p.f_hi {
         c = p.code_hi;
     } else if f >= p.f_lo {
-        var t = 0.5;
-        if dither_kind == 1u {
-            t = (f32(bayer8(q.x, q.y)) + 0.5) / 64.0;
-        } else if dither_kind == 2u {
-            t = noise[(q.y % 64u) * 64u + q.x % 64u];
-        }
-        c = clamp(floor(code_of(f) + t), p.code_lo, p.code_hi);
+        c = clamp(floor(code_of(f) + threshold(q)), p.code_lo, p.code_hi);
     }
     return c;
 }
@@ -91,6 +148,12 @@ fn screen_code(pos: vec4<f32>) -> f32 {
 fn fs_main(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
     let v = screen_code(pos) / p.top;
     return vec4<f32>(v, v, v, 1.0);
+}
+
+// A colour screen's display targets: each primary's code / top in its channel.
+@fragment
+fn fs_rgb(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+    return vec4<f32>(screen_rgb(pos) / p.top, 1.0);
 }
 
 // The off-screen target: the codes themselves, two 16-bit codes per word (low half first),
@@ -114,4 +177,15 @@ fn cs_codes(@builtin(global_invocation_id) id: vec3<u32>) {
             codes[id.y * words + w] = a | (b << 16u);
         }
     }
+}
+
+// A colour screen's off-screen target: one word per pixel, R | G << 10 | B << 20 (codes of
+// 10 bit at most), `target_px.x` words per row.
+@compute @workgroup_size(64, 1, 1)
+fn cs_rgb(@builtin(global_invocation_id) id: vec3<u32>) {
+    if id.x >= p.target_px.x || id.y >= p.target_px.y {
+        return;
+    }
+    let c = vec3<u32>(screen_rgb(vec4<f32>(f32(id.x) + 0.5, f32(id.y) + 0.5, 0.0, 1.0)));
+    codes[id.y * p.target_px.x + id.x] = c.x | (c.y << 10u) | (c.z << 20u);
 }

@@ -8,12 +8,16 @@
 //! rasterising than on the LUT), and through a render pass the windows of [`window`]: a
 //! borderless fullscreen window on the stimulator's monitor and the operator's preview.
 //! The dither kind is a pipeline constant (one pipeline per target format and dither).
+//! A colour screen ([`Presenter::set_colour`]) takes one F_eff plane per camera band and
+//! solves each pixel for its R, G, B codes in the same pass (`screen_rgb`), as
+//! [`crate::stimulator::calibration::apply_colour`] does on the CPU.
 //! The presenter never runs on the async runtime; `pollster` blocks on wgpu's futures.
 
 pub mod window;
 
 use crate::stimulator::StimulatorConfig;
 use crate::stimulator::calibration::Inverse;
+use crate::stimulator::colour::{Crosstalk, PRIMARIES};
 use crate::stimulator::dither::Dither;
 use serde::Serialize;
 use std::time::Instant;
@@ -162,6 +166,8 @@ pub(crate) struct Binding {
 /// buffer they are read back through.
 struct Offscreen {
     screen_px: [u32; 2],
+    /// A colour screen's target: one word per pixel, R | G << 10 | B << 20.
+    colour: bool,
     codes: wgpu::Buffer,
     readback: wgpu::Buffer,
     words_per_row: u32,
@@ -177,12 +183,12 @@ pub struct Presenter {
     shader: wgpu::ShaderModule,
     layout: wgpu::BindGroupLayout,
     pipeline_layout: wgpu::PipelineLayout,
-    /// Render pipelines by target format and dither kind.
-    pipelines: Vec<((wgpu::TextureFormat, u32), wgpu::RenderPipeline)>,
+    /// Render pipelines by target format, dither kind and colour.
+    pipelines: Vec<((wgpu::TextureFormat, u32, bool), wgpu::RenderPipeline)>,
     out_layout: wgpu::BindGroupLayout,
     compute_layout: wgpu::PipelineLayout,
-    /// Off-screen compute pipelines by dither kind.
-    computes: Vec<(u32, wgpu::ComputePipeline)>,
+    /// Off-screen compute pipelines by dither kind and colour.
+    computes: Vec<((u32, bool), wgpu::ComputePipeline)>,
     bits: u32,
     lut: Option<Lut>,
     table_error: f64,
@@ -193,6 +199,10 @@ pub struct Presenter {
     scratch: Vec<f32>,
     /// The blue-noise dither's thresholds.
     noise: wgpu::Buffer,
+    /// A colour screen's parameters (`lut.wgsl`'s `colour`), and its camera's bands (0: a
+    /// grey screen).
+    colour: wgpu::Buffer,
+    colour_bands: u32,
 }
 
 impl Presenter {
@@ -231,6 +241,7 @@ impl Presenter {
                 buffer_entry(1, visibility, storage),
                 buffer_entry(2, visibility, wgpu::BufferBindingType::Uniform),
                 buffer_entry(3, visibility, storage),
+                buffer_entry(4, visibility, storage),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -258,7 +269,10 @@ impl Presenter {
             .collect();
         let noise = storage_buffer(&device, "blue noise", thresholds.len());
         queue.write_buffer(&noise, 0, bytemuck::cast_slice(&thresholds));
+        let colour = storage_buffer(&device, "colour", 4);
         Ok(Presenter {
+            colour,
+            colour_bands: 0,
             noise,
             instance,
             out_layout,
@@ -292,13 +306,66 @@ impl Presenter {
         self.table_error
     }
 
-    /// Uploads the inverse calibration (again whenever the curve is replayed).
+    /// Uploads the inverse calibration of a grey screen (again whenever the curve is
+    /// replayed).
     pub fn set_inverse(&mut self, inverse: &Inverse) -> Result<(), DisplayError> {
         let table = DirectTable::build(inverse)?;
-        let n = table.codes.len();
+        self.set_tables(inverse, table.max_code_error, &table.codes);
+        self.colour_bands = 0;
+        Ok(())
+    }
+
+    /// Uploads a colour screen's calibration: its primaries' inverses (R, G, B), the
+    /// cross-talk with the camera's bands, and the dither shift
+    /// ([`crate::stimulator::Stimulator::dither_shift`]). Frames then carry one F_eff plane
+    /// per band.
+    pub fn set_colour(
+        &mut self,
+        inverses: &[Inverse],
+        crosstalk: &Crosstalk,
+        dither_shift: u32,
+    ) -> Result<(), DisplayError> {
+        let bands = crosstalk.bands();
+        let mut words = vec![0u32; 4 + 8 * PRIMARIES + PRIMARIES * bands];
+        words[0] = bands as u32;
+        words[1] = dither_shift;
+        let mut codes = Vec::new();
+        let mut worst = 0.0f64;
+        for (c, inverse) in inverses.iter().enumerate().take(PRIMARIES) {
+            let table = DirectTable::build(inverse)?;
+            worst = worst.max(table.max_code_error);
+            let (code_lo, code_hi) = inverse.codes();
+            let (f_lo, f_hi) = inverse.range();
+            let w = &mut words[4 + 8 * c..12 + 8 * c];
+            w[0] = (code_lo as f32).to_bits();
+            w[1] = (code_hi as f32).to_bits();
+            w[2] = (f_lo as f32).to_bits();
+            w[3] = (f_hi as f32).to_bits();
+            w[4] = (1.0 / (f_hi as f32 - f_lo as f32)).to_bits();
+            w[5] = codes.len() as u32;
+            w[6] = table.codes.len() as u32;
+            codes.extend_from_slice(&table.codes);
+        }
+        for c in 0..PRIMARIES {
+            for b in 0..bands {
+                words[4 + 8 * PRIMARIES + c * bands + b] = (crosstalk.p[c][b] as f32).to_bits();
+            }
+        }
+        self.colour = storage_buffer(&self.device, "colour", words.len());
+        self.queue
+            .write_buffer(&self.colour, 0, bytemuck::cast_slice(&words));
+        self.set_tables(&inverses[0], worst, &codes);
+        self.colour_bands = bands as u32;
+        Ok(())
+    }
+
+    /// Uploads direct tables (a grey screen's one; a colour screen's three, one after the
+    /// other); `inverse` gives the grey pass its parameters.
+    fn set_tables(&mut self, inverse: &Inverse, max_code_error: f64, codes: &[f32]) {
+        let n = codes.len();
         let buffer = storage_buffer(&self.device, "inverse calibration", n);
         self.queue
-            .write_buffer(&buffer, 0, bytemuck::cast_slice(&table.codes));
+            .write_buffer(&buffer, 0, bytemuck::cast_slice(codes));
         let (code_lo, code_hi) = inverse.codes();
         let (f_lo, f_hi) = inverse.range();
         self.lut = Some(Lut {
@@ -309,13 +376,13 @@ impl Presenter {
             f_lo: f_lo as f32,
             f_hi: f_hi as f32,
         });
-        self.table_error = table.max_code_error;
+        self.table_error = max_code_error;
         self.generation += 1;
-        Ok(())
     }
 
     /// Uploads one frame: `feff_region` is the screen region's F_eff (region size, row-major,
-    /// after the collimator mapping and the transmittance). Returns the time taken [ms].
+    /// after the collimator mapping and the transmittance; for a colour screen one such plane
+    /// per camera band). Returns the time taken [ms].
     pub fn upload(
         &mut self,
         config: &StimulatorConfig,
@@ -323,7 +390,7 @@ impl Presenter {
         feff_region: &[f64],
     ) -> Result<f64, DisplayError> {
         let t0 = Instant::now();
-        let want = region_px[0] * region_px[1];
+        let want = region_px[0] * region_px[1] * self.colour_bands.max(1) as usize;
         if feff_region.len() != want {
             return Err(DisplayError::RegionSize {
                 got: feff_region.len(),
@@ -331,7 +398,11 @@ impl Presenter {
             });
         }
         let region = [region_px[0] as u32, region_px[1] as u32];
-        if self.input.as_ref().is_none_or(|i| i.region_px != region) {
+        if self
+            .input
+            .as_ref()
+            .is_none_or(|i| i.region_px != region || i.buffer.size() != 4 * want.max(1) as u64)
+        {
             let buffer = storage_buffer(&self.device, "feff", want);
             self.input = Some(Input {
                 region_px: region,
@@ -363,7 +434,8 @@ impl Presenter {
     }
 
     /// Computes the uploaded frame's codes for a whole `screen_px` screen off-screen and
-    /// reads them back, one `u16` per screen pixel. The same `screen_code` as the windows'
+    /// reads them back, one `u16` per screen pixel (a colour screen's three planes, R, G, B,
+    /// one after the other). The same `screen_code` as the windows'
     /// pass, run as a compute pass into a buffer (on a software rasteriser, rasterising the
     /// screen costs more than the LUT itself).
     pub fn render_offscreen(
@@ -374,12 +446,17 @@ impl Presenter {
         let mut t = PresentTimings::default();
         let t0 = Instant::now();
         let screen = [screen_px[0] as u32, screen_px[1] as u32];
+        let colour = self.colour_bands > 0;
         if self
             .offscreen
             .as_ref()
-            .is_none_or(|o| o.screen_px != screen)
+            .is_none_or(|o| o.screen_px != screen || o.colour != colour)
         {
-            let words_per_row = screen[0].div_ceil(2);
+            let words_per_row = if colour {
+                screen[0]
+            } else {
+                screen[0].div_ceil(2)
+            };
             let size = (4 * words_per_row * screen[1]) as u64;
             let buffer = |label, usage| buffer(&self.device, label, size, usage);
             let codes = buffer(
@@ -400,6 +477,7 @@ impl Presenter {
             });
             self.offscreen = Some(Offscreen {
                 screen_px: screen,
+                colour,
                 codes,
                 readback,
                 words_per_row,
@@ -418,7 +496,9 @@ impl Presenter {
                 pass.set_pipeline(&compute);
                 pass.set_bind_group(0, &b.group, &[]);
                 pass.set_bind_group(1, &off.out_group, &[]);
-                pass.dispatch_workgroups(off.words_per_row.div_ceil(128), screen[1], 1);
+                // Two words per invocation for a grey screen, one pixel for a colour one.
+                let per_group = if colour { 64 } else { 128 };
+                pass.dispatch_workgroups(off.words_per_row.div_ceil(per_group), screen[1], 1);
             }
             encoder.copy_buffer_to_buffer(&off.codes, 0, &off.readback, 0, off.codes.size());
             self.queue.submit([encoder.finish()]);
@@ -468,10 +548,22 @@ impl Presenter {
                 .get_mapped_range()
                 .map_err(|e| DisplayError::Readback(e.to_string()))?;
             out.clear();
-            out.resize(w * h, 0);
-            let row_bytes = 4 * off.words_per_row as usize;
-            for (dst, row) in out.chunks_exact_mut(w).zip(mapped.chunks(row_bytes)) {
-                dst.copy_from_slice(bytemuck::cast_slice(&row[..2 * w]));
+            if off.colour {
+                out.resize(PRIMARIES * w * h, 0);
+                let words: &[u32] = bytemuck::cast_slice(&mapped[..4 * w * h]);
+                let (r, rest) = out.split_at_mut(w * h);
+                let (g, b) = rest.split_at_mut(w * h);
+                for (i, &x) in words.iter().enumerate() {
+                    r[i] = (x & 0x3ff) as u16;
+                    g[i] = (x >> 10 & 0x3ff) as u16;
+                    b[i] = (x >> 20 & 0x3ff) as u16;
+                }
+            } else {
+                out.resize(w * h, 0);
+                let row_bytes = 4 * off.words_per_row as usize;
+                for (dst, row) in out.chunks_exact_mut(w).zip(mapped.chunks(row_bytes)) {
+                    dst.copy_from_slice(bytemuck::cast_slice(&row[..2 * w]));
+                }
             }
         }
         off.readback.unmap();
@@ -518,6 +610,10 @@ impl Presenter {
                     wgpu::BindGroupEntry {
                         binding: 3,
                         resource: self.noise.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: self.colour.as_entire_binding(),
                     },
                 ],
             });
@@ -593,10 +689,12 @@ impl Presenter {
         self.input.as_ref().map_or(0, |i| i.dither)
     }
 
-    /// The off-screen compute pipeline for the uploaded frame's dither (made once per kind).
+    /// The off-screen compute pipeline for the uploaded frame's dither and the screen's
+    /// colour (made once per pair).
     fn compute_pipeline(&mut self) -> wgpu::ComputePipeline {
         let kind = self.dither_kind();
-        if let Some((_, p)) = self.computes.iter().find(|(k, _)| *k == kind) {
+        let colour = self.colour_bands > 0;
+        if let Some((_, p)) = self.computes.iter().find(|(k, _)| *k == (kind, colour)) {
             return p.clone();
         }
         let pipeline = self
@@ -605,18 +703,18 @@ impl Presenter {
                 label: Some("lut (off-screen)"),
                 layout: Some(&self.compute_layout),
                 module: &self.shader,
-                entry_point: Some("cs_codes"),
+                entry_point: Some(if colour { "cs_rgb" } else { "cs_codes" }),
                 compilation_options: dither_constant(kind),
                 cache: None,
             });
-        self.computes.push((kind, pipeline.clone()));
+        self.computes.push(((kind, colour), pipeline.clone()));
         pipeline
     }
 
     /// The LUT pipeline for a target format and the uploaded frame's dither (made once per
     /// pair).
     fn pipeline(&mut self, format: wgpu::TextureFormat) -> &wgpu::RenderPipeline {
-        let key = (format, self.dither_kind());
+        let key = (format, self.dither_kind(), self.colour_bands > 0);
         if let Some(i) = self.pipelines.iter().position(|(k, _)| *k == key) {
             return &self.pipelines[i].1;
         }
@@ -633,7 +731,7 @@ impl Presenter {
                 },
                 fragment: Some(wgpu::FragmentState {
                     module: &self.shader,
-                    entry_point: Some("fs_main"),
+                    entry_point: Some(if key.2 { "fs_rgb" } else { "fs_main" }),
                     targets: &[Some(wgpu::ColorTargetState {
                         format,
                         blend: None,

@@ -21,11 +21,11 @@ pub enum PipelineError {
     Render(#[from] RenderError),
     #[error(transparent)]
     Stimulator(#[from] StimulatorError),
-    /// The daemon's chain carries one signal image: a camera of several bands has nowhere to
-    /// go until colour screens exist.
+    /// The daemon's chain carries one signal image: a camera of several bands (on a colour
+    /// screen) is rendered and shown by `optistim render` so far.
     #[error(
         "the camera has {0} bands: the daemon drives monochrome cameras (one band) so far; \
-         render colour with `optistim render`"
+         render colour, and colour screens, with `optistim render`"
     )]
     Bands(usize),
 }

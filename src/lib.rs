@@ -20,7 +20,7 @@
 //! | [`irradiance`] | mesh facets' irradiance (SLIM): direct with shadows, Lambertian radiosity (form factors with BVH visibility, Jacobi orders, Eqs. 4-9), statistics over a rotation (Eq. 14) |
 //! | [`inversion`] | Hapke parameters from images of a body of known shape and pose (SLIM Sec. 11): the renderer's lines of sight cast once, Levenberg-Marquardt on the shot- and read-noise-weighted residuals, uncertainties from the normal matrix, the histogram chi-square of Eq. 15 |
 //! | [`fidelity`] | a frame's error against the converged reference (total; median, p95, p99 per lit pixel; SSIM): what the sweep charts and budgets are written in; the budget planner (`fidelity = "budget"`): per frame, what it shows (probe rays, the maps' contrast) and the cheapest rung of a settings ladder an error model fitted by the sweep predicts to meet the budget |
-//! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), dithering, collimator mapping, the simulated camera, curve measurement |
+//! | [`stimulator`] | F_eff (Eqs. 58-60), screen calibration curves (load, validate, interpolate, invert, clip counts, replay), colour screens (cross-talk of the primaries into the camera's bands, the per-pixel solve), dithering, collimator mapping, the simulated camera, curve and cross-talk measurement |
 //! | [`display`] | the wgpu presenter: device, queue and the LUT pass (screen-region F_eff -> screen DN on the GPU) into an off-screen buffer read back, a borderless fullscreen window on the stimulator's monitor, or the operator's preview |
 //! | [`pipeline`] | one pose's way to the screen: render -> signal -> stimulator -> simulated camera, timed per stage |
 //! | [`config`] | scene TOML: raw serde structs -> validated `Scene`, `Pose`, `Settings`, with errors naming file, key, value and what is allowed |
@@ -62,6 +62,8 @@
 //!                                        │ signal [e-/s]
 //!   stimulator: F_eff = k·S (Eq. 60) → screen region (collimator) → calibration⁻¹ (+ dither)
 //!               → screen DN ─► simulated camera: true response → collimator → detector → DN
+//!     (colour: each band's F_eff_b = k_b·S_b → per pixel f = P·F (cross-talk) → each primary's
+//!      calibration⁻¹ → R, G, B DN ─► simulated camera: F_b = X·f → each band's detector)
 //!   display::Presenter: screen-region F_eff → LUT pass (same inverse, on the GPU) → screen DN
 //!               (off-screen with read-back | fullscreen window | preview window)
 //!

@@ -58,6 +58,15 @@ impl Comparison {
     fn passes(&self) -> bool {
         (0..3).all(|b| self.total[b].abs() < 0.01 && self.median[b] < 0.02)
     }
+
+    fn assert_passes(&self) {
+        assert!(
+            self.passes(),
+            "total {:?} median {:?}",
+            self.total,
+            self.median
+        );
+    }
 }
 
 /// The band pixel `i` of a `width`-pixel-wide frame of `dn` records.
@@ -127,23 +136,13 @@ fn the_colour_camera_sees_on_the_colour_screen_what_it_would_see_in_space() {
     assert!(matches!(cfg.scene.camera.detector.layout, Layout::Bayer(_)));
     let cmp = compare(&cfg, example(), example());
     assert!(cmp.lit.iter().all(|&n| n > 20_000), "{:?}", cmp.lit);
-    assert!(
-        cmp.passes(),
-        "total {:?} median {:?}",
-        cmp.total,
-        cmp.median
-    );
+    cmp.assert_passes();
     // The same camera with a full image per band (three chips).
     let mut planes = cfg.clone();
     planes.scene.camera.detector.layout = Layout::Planes;
     let cmp = compare(&planes, example(), example());
     assert!(cmp.lit.iter().all(|&n| n > 100_000), "{:?}", cmp.lit);
-    assert!(
-        cmp.passes(),
-        "total {:?} median {:?}",
-        cmp.total,
-        cmp.median
-    );
+    cmp.assert_passes();
 }
 
 /// The screen's primaries excite the other bands as the example's matrix says, but the
@@ -227,12 +226,7 @@ fn calibrating_the_colour_screen_recovers_its_curves_and_crosstalk() {
     let mut quiet = cfg.clone();
     quiet.scene.camera.detector.noise = Noise::default();
     let cmp = compare(&quiet, measured, example());
-    assert!(
-        cmp.passes(),
-        "total {:?} median {:?}",
-        cmp.total,
-        cmp.median
-    );
+    cmp.assert_passes();
 }
 
 /// A colour a screen cannot show: a band lit with its neighbours dark needs negative

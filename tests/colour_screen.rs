@@ -264,3 +264,93 @@ fn a_colour_curve_without_a_band_s_crosstalk_is_refused() {
         .to_string();
     assert!(err.contains("crosstalk B"), "{err}");
 }
+
+/// The daemon drives the colour camera on the colour screen (off-screen on the GPU adapter):
+/// poses in lockstep are presented, subscribers get the simulated camera's raw mosaic, and
+/// the dashboard's images are in colour (the screen's codes an RGB PNG, the camera's view a
+/// cell-wise RGB view of its mosaic). Needs `../shared/trajectories/` beside the checkout.
+#[test]
+fn the_daemon_drives_a_colour_camera_on_a_colour_screen() {
+    use common::{Client, http, start_daemon};
+    use optistim::server::frames::{Mode, PresenterChoice};
+    use optistim::server::protocol::Message;
+    use std::time::Duration;
+    let text = std::fs::read_to_string("config/stimulator_rgb.toml")
+        .unwrap()
+        .replace("\"../calibration/", "\"calibration/");
+    let daemon = start_daemon(
+        &text,
+        PresenterChoice::Offscreen,
+        Mode::Lockstep,
+        None,
+        None,
+    );
+    eprintln!("presenter: {}", daemon.presenter());
+    let mut sub = Client::connect(daemon.tcp_addr);
+    sub.send(&Message::Subscribe { camera: true });
+    std::thread::sleep(Duration::from_millis(200));
+
+    let mut poses = optistim::app::replay::read_poses(std::path::Path::new(
+        "../shared/trajectories/nrho_2orbits.csv",
+    ))
+    .unwrap_or_else(|e| panic!("{e}"));
+    poses.truncate(3);
+    let s = std::net::TcpStream::connect(daemon.tcp_addr).unwrap();
+    let (r, w): (
+        Box<dyn std::io::Read + Send>,
+        Box<dyn std::io::Write + Send>,
+    ) = (Box::new(s.try_clone().unwrap()), Box::new(s));
+    let run =
+        optistim::app::replay::stream(r, w, &poses, 5.0, Mode::Lockstep, "tcp", None).unwrap();
+    assert_eq!(run.acked, 3, "{:?}", run.error_messages);
+
+    let (mut frames, mut red, mut blue) = (0, 0.0, 0.0);
+    let order = optistim::detector::Bayer::Rggb;
+    while let Some(m) = sub.recv(Duration::from_secs(2)) {
+        if let Message::CameraFrame {
+            width, height, dn, ..
+        } = m
+        {
+            assert_eq!((width, height, dn.len()), (1024, 1024, 1024 * 1024));
+            for (i, &v) in dn.iter().enumerate() {
+                match order.band_at(i % 1024, i / 1024) {
+                    0 => red += v as f64,
+                    2 => blue += v as f64,
+                    _ => {}
+                }
+            }
+            frames += 1;
+        }
+    }
+    assert_eq!(frames, 3);
+    assert!(red != blue && red > 0.0, "R {red} B {blue}");
+
+    let decode = |bytes: &[u8]| {
+        let mut reader = png::Decoder::new(std::io::Cursor::new(bytes.to_vec()))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        (info.color_type, info.bit_depth, buf)
+    };
+    let (code, body) = http(daemon.http_addr, "GET", "/frame/latest.png", b"");
+    assert_eq!(code, 200);
+    let (colour, depth, _) = decode(&body);
+    assert_eq!(
+        (colour, depth),
+        (png::ColorType::Rgb, png::BitDepth::Sixteen)
+    );
+    let (code, body) = http(daemon.http_addr, "GET", "/camera/view.png", b"");
+    assert_eq!(code, 200);
+    let (colour, _, rgb) = decode(&body);
+    assert_eq!(colour, png::ColorType::Rgb);
+    assert!(
+        rgb.chunks(3).any(|p| p[0] != p[2]),
+        "the camera's view shows colour"
+    );
+    let (code, body) = http(daemon.http_addr, "GET", "/camera/latest.png", b"");
+    assert_eq!(code, 200);
+    let (colour, _, _) = decode(&body);
+    assert_eq!(colour, png::ColorType::Grayscale, "the raw mosaic");
+    daemon.shutdown();
+}

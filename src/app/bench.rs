@@ -219,7 +219,7 @@ pub fn run_display(
     let stim = maker.stimulator().expect("has a [stimulator] section");
     let region_px = stim.resampler().region_px();
     let mut presenter = crate::display::Presenter::new_headless(st.screen_bits)?;
-    presenter.set_inverse(stim.inverse())?;
+    presenter.set_drive(&stim.drive())?;
     let mut screen = Vec::new();
     let mut rows: Vec<[f64; 8]> = Vec::with_capacity(frames);
     for _ in 0..frames.max(1) + 1 {

@@ -46,7 +46,7 @@ pub fn run(
     let mut sent = Ok(());
     window::run(
         st,
-        stimulator.inverse(),
+        &stimulator.drive(),
         WindowOptions {
             fullscreen,
             preview: options.preview,

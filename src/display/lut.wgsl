@@ -80,42 +80,81 @@ fn cf(i: u32) -> f32 {
     return bitcast<f32>(colour[i]);
 }
 
-// Primary c's code for its F_eff f with dither threshold t.
-fn primary_code(c: u32, f: f32, t: f32) -> f32 {
+// A colour screen's primary: its codes' and F_eff's ranges and its direct table.
+struct Primary {
+    code_lo: f32,
+    code_hi: f32,
+    f_lo: f32,
+    f_hi: f32,
+    inv_span: f32,
+    off: u32,
+    n: u32,
+};
+
+// A colour screen's parameters, read once per invocation.
+struct Solve {
+    r: Primary,
+    g: Primary,
+    b: Primary,
+    bands: u32,
+    shift: u32,
+    // P for three bands (column b: band b's weights of R, G, B), read once.
+    m: mat3x3<f32>,
+};
+
+fn primary(c: u32) -> Primary {
     let base = 4u + 8u * c;
-    let code_lo = cf(base);
-    let code_hi = cf(base + 1u);
-    if f > cf(base + 3u) {
-        return code_hi;
+    return Primary(cf(base), cf(base + 1u), cf(base + 2u), cf(base + 3u), cf(base + 4u),
+        colour[base + 5u], colour[base + 6u]);
+}
+
+fn weights(b: u32, bands: u32) -> vec3<f32> {
+    return vec3<f32>(cf(28u + b), cf(28u + bands + b), cf(28u + 2u * bands + b));
+}
+
+fn solve() -> Solve {
+    let bands = colour[0];
+    var m = mat3x3<f32>();
+    if bands == 3u {
+        m = mat3x3<f32>(weights(0u, 3u), weights(1u, 3u), weights(2u, 3u));
     }
-    if !(f >= cf(base + 2u)) {
-        return code_lo;
+    return Solve(primary(0u), primary(1u), primary(2u), bands, colour[1], m);
+}
+
+// A primary's code for its F_eff f with dither threshold t.
+fn primary_code(pr: Primary, f: f32, t: f32) -> f32 {
+    if f > pr.f_hi {
+        return pr.code_hi;
     }
-    let off = colour[base + 5u];
-    let n = colour[base + 6u];
-    let u = sqrt(sqrt(clamp((f - cf(base + 2u)) * cf(base + 4u), 0.0, 1.0)));
-    let x = u * f32(n - 1u);
-    let k = min(u32(x), n - 2u);
-    let code = mix(table[off + k], table[off + k + 1u], x - f32(k));
-    return clamp(floor(code + t), code_lo, code_hi);
+    if !(f >= pr.f_lo) {
+        return pr.code_lo;
+    }
+    let u = sqrt(sqrt(clamp((f - pr.f_lo) * pr.inv_span, 0.0, 1.0)));
+    let x = u * f32(pr.n - 1u);
+    let k = min(u32(x), pr.n - 2u);
+    let code = mix(table[pr.off + k], table[pr.off + k + 1u], x - f32(k));
+    return clamp(floor(code + t), pr.code_lo, pr.code_hi);
 }
 
 // A colour screen's R, G, B codes at fragment position `pos` (0 outside the image region).
-fn screen_rgb(pos: vec4<f32>) -> vec3<f32> {
+fn screen_rgb(pos: vec4<f32>, s: Solve) -> vec3<f32> {
     let q = vec2<u32>(floor(pos.xy * p.view_scale)) - p.region_origin;
     if q.x >= p.region_size.x || q.y >= p.region_size.y {
         return vec3<f32>(0.0);
     }
-    let bands = colour[0];
     let n = p.region_size.x * p.region_size.y;
     let i = q.y * p.region_size.x + q.x;
     var f = vec3<f32>(0.0);
-    for (var b = 0u; b < bands; b++) {
-        let v = feff[b * n + i];
-        f += vec3<f32>(cf(28u + b), cf(28u + bands + b), cf(28u + 2u * bands + b)) * v;
+    if s.bands == 3u {
+        f = s.m * vec3<f32>(feff[i], feff[n + i], feff[2u * n + i]);
+    } else {
+        for (var b = 0u; b < s.bands; b++) {
+            f += weights(b, s.bands) * feff[b * n + i];
+        }
     }
-    let t = threshold(q >> vec2<u32>(colour[1]));
-    return vec3<f32>(primary_code(0u, f.x, t), primary_code(1u, f.y, t), primary_code(2u, f.z, t));
+    let t = threshold(q >> vec2<u32>(s.shift));
+    return vec3<f32>(primary_code(s.r, f.x, t), primary_code(s.g, f.y, t),
+        primary_code(s.b, f.z, t));
 }
 
 // The fractional code showing f (f_lo <= f <= f_hi).
@@ -153,7 +192,7 @@ fn fs_main(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
 // A colour screen's display targets: each primary's code / top in its channel.
 @fragment
 fn fs_rgb(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
-    return vec4<f32>(screen_rgb(pos) / p.top, 1.0);
+    return vec4<f32>(screen_rgb(pos, solve()) / p.top, 1.0);
 }
 
 // The off-screen target: the codes themselves, two 16-bit codes per word (low half first),
@@ -180,12 +219,21 @@ fn cs_codes(@builtin(global_invocation_id) id: vec3<u32>) {
 }
 
 // A colour screen's off-screen target: one word per pixel, R | G << 10 | B << 20 (codes of
-// 10 bit at most), `target_px.x` words per row.
+// 10 bit at most), `target_px.x` words per row. Each invocation fills four words: on a
+// software adapter the per-invocation overhead (and reading the parameters) is as large as
+// the solve itself.
 @compute @workgroup_size(64, 1, 1)
 fn cs_rgb(@builtin(global_invocation_id) id: vec3<u32>) {
-    if id.x >= p.target_px.x || id.y >= p.target_px.y {
+    if 4u * id.x >= p.target_px.x || id.y >= p.target_px.y {
         return;
     }
-    let c = vec3<u32>(screen_rgb(vec4<f32>(f32(id.x) + 0.5, f32(id.y) + 0.5, 0.0, 1.0)));
-    codes[id.y * p.target_px.x + id.x] = c.x | (c.y << 10u) | (c.z << 20u);
+    let s = solve();
+    let y = f32(id.y) + 0.5;
+    for (var k = 0u; k < 4u; k++) {
+        let x = 4u * id.x + k;
+        if x < p.target_px.x {
+            let c = vec3<u32>(screen_rgb(vec4<f32>(f32(x) + 0.5, y, 0.0, 1.0), s));
+            codes[id.y * p.target_px.x + x] = c.x | (c.y << 10u) | (c.z << 20u);
+        }
+    }
 }

@@ -15,10 +15,10 @@
 
 pub mod window;
 
-use crate::stimulator::StimulatorConfig;
 use crate::stimulator::calibration::Inverse;
 use crate::stimulator::colour::{Crosstalk, PRIMARIES};
 use crate::stimulator::dither::Dither;
+use crate::stimulator::{Drive, StimulatorConfig};
 use serde::Serialize;
 use std::time::Instant;
 
@@ -315,6 +315,21 @@ impl Presenter {
         Ok(())
     }
 
+    /// Uploads what shows a stimulator's frames ([`Stimulator::drive`]): a grey screen's
+    /// inverse or a colour screen's calibration.
+    ///
+    /// [`Stimulator::drive`]: crate::stimulator::Stimulator::drive
+    pub fn set_drive(&mut self, drive: &Drive) -> Result<(), DisplayError> {
+        match drive {
+            Drive::Grey(inverse) => self.set_inverse(inverse),
+            Drive::Colour {
+                inverses,
+                crosstalk,
+                dither_shift,
+            } => self.set_colour(inverses, crosstalk, *dither_shift),
+        }
+    }
+
     /// Uploads a colour screen's calibration: its primaries' inverses (R, G, B), the
     /// cross-talk with the camera's bands, and the dither shift
     /// ([`crate::stimulator::Stimulator::dither_shift`]). Frames then carry one F_eff plane
@@ -496,8 +511,8 @@ impl Presenter {
                 pass.set_pipeline(&compute);
                 pass.set_bind_group(0, &b.group, &[]);
                 pass.set_bind_group(1, &off.out_group, &[]);
-                // Two words per invocation for a grey screen, one pixel for a colour one.
-                let per_group = if colour { 64 } else { 128 };
+                // Two words per invocation for a grey screen, four for a colour one.
+                let per_group = if colour { 256 } else { 128 };
                 pass.dispatch_workgroups(off.words_per_row.div_ceil(per_group), screen[1], 1);
             }
             encoder.copy_buffer_to_buffer(&off.codes, 0, &off.readback, 0, off.codes.size());

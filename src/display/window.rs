@@ -8,8 +8,8 @@
 //! then drawn again, so a window never stays black or stale.
 
 use super::{Binding, DisplayError, PresentTimings, Presenter};
+use crate::stimulator::Drive;
 use crate::stimulator::StimulatorConfig;
-use crate::stimulator::calibration::Inverse;
 use std::sync::Arc;
 use std::time::Instant;
 use winit::application::ApplicationHandler;
@@ -62,8 +62,9 @@ pub enum DisplayEvent {
         region_px: [usize; 2],
         region_feff_w_m2: Arc<Vec<f64>>,
     },
-    /// A replayed calibration curve's inverse, for the frames that follow.
-    Curve(Box<Inverse>),
+    /// A replayed calibration curve's drive (its inverse, or a colour screen's), for the
+    /// frames that follow.
+    Curve(Box<Drive>),
     Quit,
 }
 
@@ -132,7 +133,7 @@ struct App<F: FnMut(Presented)> {
 /// from another thread to feed frames); `on_presented` hears of every presented frame.
 pub fn run(
     stimulator: &StimulatorConfig,
-    inverse: &Inverse,
+    drive: &Drive,
     options: WindowOptions,
     on_ready: impl FnOnce(DisplaySender),
     on_presented: impl FnMut(Presented),
@@ -151,7 +152,7 @@ pub fn run(
         Box::new(event_loop.owned_display_handle()),
     ));
     let mut presenter = Presenter::with_instance(instance, stimulator.screen_bits)?;
-    presenter.set_inverse(inverse)?;
+    presenter.set_drive(drive)?;
     on_ready(DisplaySender(event_loop.create_proxy()));
     let mut app = App {
         presenter,
@@ -429,7 +430,7 @@ impl<F: FnMut(Presented)> ApplicationHandler<DisplayEvent> for App<F> {
                     self.current = Some(frame_id);
                     self.present_all(upload)
                 }),
-            DisplayEvent::Curve(inverse) => self.presenter.set_inverse(&inverse),
+            DisplayEvent::Curve(drive) => self.presenter.set_drive(&drive),
             DisplayEvent::Quit => {
                 event_loop.exit();
                 Ok(())

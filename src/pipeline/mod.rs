@@ -1,6 +1,6 @@
-//! One pose's way to the screen, off the async runtime: render -> detector signal -> the
-//! stimulator chain (F_eff, screen region, clip counts; DN on the CPU or the GPU), and the
-//! simulated camera that images the screen.
+//! One pose's way to the screen, off the async runtime: render -> detector signal (one plane
+//! per band) -> the stimulator chain (F_eff, screen region, clip counts; DN on the CPU or the
+//! GPU; a colour camera on a colour screen), and the simulated camera that images the screen.
 //! [`FrameMaker`] holds the per-scene state (renderer pool and buffers, the stimulator with its
 //! current curve, the simulated camera) and reports every stage's time with every frame.
 
@@ -21,13 +21,6 @@ pub enum PipelineError {
     Render(#[from] RenderError),
     #[error(transparent)]
     Stimulator(#[from] StimulatorError),
-    /// The daemon's chain carries one signal image: a camera of several bands (on a colour
-    /// screen) is rendered and shown by `optistim render` so far.
-    #[error(
-        "the camera has {0} bands: the daemon drives monochrome cameras (one band) so far; \
-         render colour, and colour screens, with `optistim render`"
-    )]
-    Bands(usize),
 }
 
 /// Time per stage of one frame [ms].
@@ -43,7 +36,7 @@ pub struct MadeFrame {
     pub frame_id: u64,
     /// `(P/L)` per camera pixel [sr m^2], as rendered.
     pub pl: Vec<f64>,
-    /// The flight camera's signal [e-/s] (camera pixels, row-major).
+    /// The flight camera's signal [e-/s] (camera pixels, row-major; one plane per band).
     pub signal_e_per_s: Vec<f64>,
     pub stats: FrameStats,
     /// With a `[stimulator]` section: F_eff, the screen region, the clip counts, and (once
@@ -67,10 +60,6 @@ impl FrameMaker {
     /// Loads the calibration and the simulated camera's true response of `config`'s
     /// `[stimulator]` section, when it has one.
     pub fn new(config: &Config) -> Result<FrameMaker, PipelineError> {
-        let bands = config.scene.camera.detector.bands.len();
-        if bands > 1 {
-            return Err(PipelineError::Bands(bands));
-        }
         let (stimulator, camera) = match &config.stimulator {
             Some(st) => {
                 let intr = &config.scene.camera.intrinsics;
@@ -168,8 +157,19 @@ impl FrameMaker {
         let frame = self.renderer.render(&cfg.scene, pose, settings)?;
         t.render = ms(t0);
         let t0 = Instant::now();
-        let det = &cfg.scene.camera.detector;
-        let signal = det.signal(&frame.pl, cfg.scene.signal_factor());
+        // Eq. 45 per band: one plane per band (each band's own image when its distortion
+        // moved it).
+        let factors = cfg.scene.band_factors();
+        let signal = if factors.len() == 1 {
+            cfg.scene.camera.detector.signal(&frame.pl, factors[0])
+        } else {
+            use rayon::prelude::*;
+            let mut signal = Vec::with_capacity(frame.pl.len() * factors.len());
+            for (b, &k) in factors.iter().enumerate() {
+                signal.par_extend(frame.band(b).par_iter().map(|&x| x * k));
+            }
+            signal
+        };
         t.signal = ms(t0);
         let t0 = Instant::now();
         let stimulator = match &self.stimulator {

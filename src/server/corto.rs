@@ -188,10 +188,20 @@ pub fn image_png(
     pl: &[f64],
 ) -> Result<Vec<u8>, String> {
     let det = &config.scene.camera.detector;
+    if let Some(b) = det.bands.iter().find(|b| b.distortion.is_some()) {
+        // The frame thread hands back the one (P/L) image, not a band's own.
+        return Err(format!(
+            "band {} has a distortion of its own: the CORTO endpoint serves cameras whose \
+             bands share the camera's distortion",
+            b.name
+        ));
+    }
     let i = &config.scene.camera.intrinsics;
     let (w, h) = (i.width_px as usize, i.height_px as usize);
     let (_, dn) = config.scene.record(|_| pl, (w, h), pose.frame_id);
-    crate::io::encode_png_gray(w, h, &dn, det.saved_bits).map_err(|e| e.to_string())
+    // A colour camera's planes as RGB, or its mosaic with its pattern, as image.png.
+    let text = crate::app::products::png_text(det);
+    crate::io::encode_png_planes(w, h, &dn, det.saved_bits, &text).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

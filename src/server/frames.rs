@@ -194,7 +194,7 @@ pub fn open_presenter(maker: &FrameMaker, choice: &PresenterChoice) -> (Present,
         _ => None,
     };
     if let Some((monitor, preview)) = want_window {
-        match spawn_display(config, st.inverse().clone(), monitor.clone(), preview) {
+        match spawn_display(config, st.drive(), monitor.clone(), preview) {
             Ok((tx, presented)) => {
                 return (
                     Present::Window { tx, presented },
@@ -206,7 +206,7 @@ pub fn open_presenter(maker: &FrameMaker, choice: &PresenterChoice) -> (Present,
     }
     if *choice != PresenterChoice::Cpu {
         match Presenter::new_headless(config.screen_bits)
-            .and_then(|mut p| p.set_inverse(st.inverse()).map(|()| p))
+            .and_then(|mut p| p.set_drive(&st.drive()).map(|()| p))
         {
             Ok(p) => {
                 let words = format!("off-screen on {}", p.adapter());
@@ -286,11 +286,11 @@ impl FrameThread {
             .replay(curve)
             .expect("the daemon has a stimulator")
             .map_err(|e| e.to_string())?;
-        let inverse = self.maker.stimulator().expect("has one").inverse();
+        let drive = self.maker.stimulator().expect("has one").drive();
         let uploaded = match &mut self.present {
-            Present::Gpu(p) => p.set_inverse(inverse).map_err(|e| e.to_string()),
+            Present::Gpu(p) => p.set_drive(&drive).map_err(|e| e.to_string()),
             Present::Window { tx, .. } => tx
-                .send(DisplayEvent::Curve(Box::new(inverse.clone())))
+                .send(DisplayEvent::Curve(Box::new(drive)))
                 .map_err(|e| e.to_string()),
             Present::Cpu => Ok(()),
         };
@@ -550,7 +550,7 @@ impl FrameThread {
 /// Starts the display thread (winit event loop) and waits until its windows exist.
 fn spawn_display(
     config: &crate::stimulator::StimulatorConfig,
-    inverse: crate::stimulator::calibration::Inverse,
+    drive: crate::stimulator::Drive,
     monitor: Monitor,
     preview: bool,
 ) -> Result<(DisplaySender, std_mpsc::Receiver<Result<Presented, String>>), String> {
@@ -564,7 +564,7 @@ fn spawn_display(
             let ready = ready_tx.clone();
             let result = window::run(
                 &config,
-                &inverse,
+                &drive,
                 window::WindowOptions {
                     fullscreen: Some(monitor),
                     preview,

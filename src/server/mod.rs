@@ -122,6 +122,7 @@ pub struct ScreenImage {
     pub frame_id: u64,
     pub exposure_s: Option<f64>,
     pub screen_px: [usize; 2],
+    /// The screen's codes: one plane, or a colour screen's three (R, G, B).
     pub dn: Vec<u16>,
 }
 

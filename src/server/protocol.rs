@@ -547,8 +547,11 @@ impl Message {
                 let width = r.u32()?;
                 let height = r.u32()?;
                 let bit_depth = r.u8()?;
+                // One plane, or a camera's planes one after the other (a camera of several
+                // bands with a full image per band): as many whole planes as the payload holds.
                 let n = width as usize * height as usize;
-                let bytes = r.take(2 * n)?;
+                let planes = ((r.b.len() - r.i) / (2 * n).max(1)).max(1);
+                let bytes = r.take(2 * n * planes)?;
                 Message::CameraFrame {
                     frame_id,
                     width,

@@ -20,6 +20,7 @@
 //! pixels red). The scale comes with the image ([`Scale`], and HTTP headers).
 
 use super::ScreenImage;
+use crate::detector::{Bayer, Layout};
 use crate::stimulator::camera::SimulatedCamera;
 use serde::Serialize;
 use std::sync::{Arc, Mutex, Weak};
@@ -335,9 +336,11 @@ fn make(views: &Views, job: &Job) -> Answer {
     let [w, h] = job.screen_px();
     if !job.view.is_camera() {
         let max_code = (1u32 << job.screen_bits) - 1;
+        // A colour screen's three planes of codes are an RGB image.
+        let dn = &job.screen.dn;
         return match job.view {
-            View::ScreenCodes => codes((seq, frame_id), w, h, &job.screen.dn, 16),
-            _ => viewing((seq, frame_id), w, h, &job.screen.dn, max_code),
+            View::ScreenCodes => codes((seq, frame_id), w, h, dn, 16, &[]),
+            _ => viewing((seq, frame_id), (w, h), dn, max_code, planes(dn, w * h)),
         };
     }
     let Some(camera) = &job.camera else {
@@ -347,14 +350,50 @@ fn make(views: &Views, job: &Job) -> Answer {
     let dn = capture(views, job, camera)?;
     let d = camera.detector();
     match job.view {
-        View::CameraDn => codes((seq, frame_id), cw, ch, &dn, d.saved_bits),
+        View::CameraDn => {
+            let text = crate::app::products::png_text(d);
+            codes((seq, frame_id), cw, ch, &dn, d.saved_bits, &text)
+        }
         _ => {
             // Saturation: the top of the saved range, or the full well if it comes first.
             let full_well_dn =
                 (d.offset_dn + d.full_well_e * d.adc_gain_dn_per_e) / d.saved_dn_step();
             let sat = d.max_dn().min(full_well_dn.floor()).max(1.0) as u32;
-            viewing((seq, frame_id), cw, ch, &dn, sat)
+            let (id, size) = ((seq, frame_id), (cw, ch));
+            match d.layout {
+                Layout::Bayer(order) => viewing(id, size, &dn, sat, mosaic(&dn, cw, ch, order)),
+                Layout::Planes => viewing(id, size, &dn, sat, planes(&dn, cw * ch)),
+            }
         }
+    }
+}
+
+/// Pixel `i`'s `[R, G, B]` DN of an image of one plane (grey) or three (`n` pixels each).
+fn planes(dn: &[u16], n: usize) -> impl Fn(usize) -> [u32; 3] + '_ {
+    let colour = dn.len() >= 3 * n && n > 0;
+    move |i| {
+        if colour {
+            [dn[i], dn[n + i], dn[2 * n + i]].map(u32::from)
+        } else {
+            [u32::from(dn[i]); 3]
+        }
+    }
+}
+
+/// Pixel `i`'s `[R, G, B]` DN for viewing a Bayer mosaic: its 2 x 2 cell's R, the mean of
+/// its two G and its B (a cell-wise view, not a demosaicing: the camera's product is the raw
+/// mosaic, `View::CameraDn`).
+fn mosaic(dn: &[u16], w: usize, h: usize, order: Bayer) -> impl Fn(usize) -> [u32; 3] + '_ {
+    move |i| {
+        let (x0, y0) = ((i % w) & !1, (i / w) & !1);
+        let (mut sum, mut count) = ([0u32; 3], [0u32; 3]);
+        for (x, y) in [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)] {
+            let (x, y) = (x.min(w - 1), y.min(h - 1));
+            let b = order.band_at(x, y);
+            sum[b] += u32::from(dn[y * w + x]);
+            count[b] += 1;
+        }
+        [0, 1, 2].map(|b| sum[b] / count[b].max(1))
     }
 }
 
@@ -399,14 +438,30 @@ fn image(
     }))
 }
 
-/// DN as they are, in a grey PNG of `bits` (16-bit above 8).
-fn codes(id: (u64, u64), w: usize, h: usize, dn: &[u16], bits: u32) -> Answer {
-    image(id, crate::io::encode_png_gray(w, h, dn, bits), None)
+/// DN as they are, in a PNG of `bits` (16-bit above 8): grey, or RGB for three planes
+/// (`crate::io::encode_png_planes`), with `text` chunks.
+fn codes(
+    id: (u64, u64),
+    w: usize,
+    h: usize,
+    dn: &[u16],
+    bits: u32,
+    text: &[(&str, String)],
+) -> Answer {
+    image(id, crate::io::encode_png_planes(w, h, dn, bits, text), None)
 }
 
-/// DN scaled for viewing: grey linear in DN with the highest DN below `clip_dn` white, and
-/// the pixels at or above `clip_dn` red.
-fn viewing(id: (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn: u32) -> Answer {
+/// DN scaled for viewing, pixel `i` being `rgb_of(i)` (the same DN thrice for grey): linear
+/// in DN with the highest DN of `dn` below `clip_dn` white, and the pixels with a channel at
+/// or above `clip_dn` red.
+fn viewing(
+    id: (u64, u64),
+    (w, h): (usize, usize),
+    dn: &[u16],
+    clip_dn: u32,
+    rgb_of: impl Fn(usize) -> [u32; 3],
+) -> Answer {
+    let n = w * h;
     let white = dn
         .iter()
         .map(|&v| u32::from(v))
@@ -414,19 +469,22 @@ fn viewing(id: (u64, u64), w: usize, h: usize, dn: &[u16], clip_dn: u32) -> Answ
         .max()
         .unwrap_or(0)
         .max(1);
+    let scaled = |c: u32| ((c * 255 + white / 2) / white).min(255) as u8;
     let mut clipped = 0u64;
-    let mut rgb = Vec::with_capacity(dn.len() * 3);
-    for (k, &v) in dn.iter().enumerate() {
+    let mut rgb = Vec::with_capacity(n * 3);
+    for k in 0..n {
         if k % (1 << 16) == 0 {
             crate::background::checkpoint();
         }
-        let v = u32::from(v);
-        if v >= clip_dn {
+        let v = rgb_of(k);
+        if v.iter().any(|&c| c >= clip_dn) {
             clipped += 1;
             rgb.extend_from_slice(&[255, 0, 64]);
-        } else {
-            let g = ((v * 255 + white / 2) / white).min(255) as u8;
+        } else if v[0] == v[1] && v[1] == v[2] {
+            let g = scaled(v[0]);
             rgb.extend_from_slice(&[g, g, g]);
+        } else {
+            rgb.extend(v.map(scaled));
         }
     }
     let scale = Scale {
@@ -473,7 +531,7 @@ mod tests {
     #[test]
     fn the_viewing_scale_makes_the_brightest_unclipped_dn_white_and_clips_red() {
         let dn = [0u16, 100, 349, 1023, 1023, 50];
-        let img = viewing((1, 7), 3, 2, &dn, 1023).unwrap();
+        let img = viewing((1, 7), (3, 2), &dn, 1023, planes(&dn, 6)).unwrap();
         let s = img.scale.unwrap();
         assert_eq!((s.white_dn, s.clipped_px, s.clip_dn), (349, 2, 1023));
         let decoder = png::Decoder::new(std::io::Cursor::new(img.png.to_vec()));

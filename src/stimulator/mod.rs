@@ -113,6 +113,19 @@ pub struct StimulatorFrame {
     pub timings_ms: StimulatorTimings,
 }
 
+/// What a presenter uploads to turn a frame's region F_eff into screen codes: a grey
+/// screen's inverse, or a colour screen's three, its cross-talk and the dither shift
+/// ([`Stimulator::drive`]).
+#[derive(Clone, Debug)]
+pub enum Drive {
+    Grey(Inverse),
+    Colour {
+        inverses: Vec<Inverse>,
+        crosstalk: Crosstalk,
+        dither_shift: u32,
+    },
+}
+
 /// The stimulator: F_eff (Eq. 60) -> screen region (collimator mapping) -> DN through the
 /// inverse calibration curve. The curve can be replaced between frames ([`Stimulator::replay`]).
 pub struct Stimulator {
@@ -151,7 +164,7 @@ impl Stimulator {
         curve: Arc<Curve>,
     ) -> Result<Stimulator, StimulatorError> {
         let camera_px = [intrinsics.width_px as usize, intrinsics.height_px as usize];
-        let (colour, inverses) = Stimulator::drive(&curve, detector, config.levels())?;
+        let (colour, inverses) = Stimulator::primaries(&curve, detector, config.levels())?;
         Ok(Stimulator {
             config: config.clone(),
             inverses,
@@ -166,7 +179,7 @@ impl Stimulator {
 
     /// What `curve` drives for `detector`'s bands: a grey screen's one inverse, or a colour
     /// screen's cross-talk and three inverses.
-    fn drive(
+    fn primaries(
         curve: &Curve,
         detector: &Detector,
         levels: u32,
@@ -219,6 +232,23 @@ impl Stimulator {
         }
     }
 
+    /// What a presenter needs to show this stimulator's frames (again after a replay).
+    pub fn drive(&self) -> Drive {
+        match &self.colour {
+            None => Drive::Grey(self.inverses[0].clone()),
+            Some(ct) => Drive::Colour {
+                inverses: self.inverses.clone(),
+                crosstalk: ct.clone(),
+                dither_shift: self.dither_shift(),
+            },
+        }
+    }
+
+    /// The screen's planes of codes: 1 (grey) or 3 (R, G, B).
+    pub fn screen_planes(&self) -> usize {
+        self.inverses.len()
+    }
+
     /// The inverse of each primary the screen drives: one, or R, G, B.
     pub fn inverses(&self) -> &[Inverse] {
         &self.inverses
@@ -233,7 +263,7 @@ impl Stimulator {
     /// Refused (the old curve stays) when a colour camera's curve lacks its cross-talk.
     pub fn replay(&mut self, curve: Arc<Curve>) -> Result<Arc<Curve>, StimulatorError> {
         (self.colour, self.inverses) =
-            Stimulator::drive(&curve, &self.detector, self.config.levels())?;
+            Stimulator::primaries(&curve, &self.detector, self.config.levels())?;
         Ok(std::mem::replace(&mut self.curve, curve))
     }
 

@@ -406,3 +406,115 @@ fn a_grey_screen_refuses_several_bands() {
         .expect("refused");
     assert!(err.to_string().contains("1 F_eff columns"), "{err}");
 }
+
+/// Maps per band (`[[body.band_map]]`): an RGB file's channels as the R, G and B bands'
+/// albedos. Each band's image is the one rendered with its map as the body's albedo map (the
+/// geometry integrated once with the mean map; Lambert is linear in the albedo, so to
+/// rounding), and the bands differ where the channels do. Bad band maps are refused by key.
+#[test]
+fn each_band_can_carry_its_own_albedo_map() {
+    use common::{TempDir, write_tiff};
+    let dir = TempDir::new("band_maps");
+    let tif = dir.join("rgb.tif");
+    // 64 x 32 texels: R bright in the west, B bright in the north, G flat.
+    let (w, h) = (64usize, 32usize);
+    let px: Vec<u16> = (0..w * h)
+        .flat_map(|i| {
+            let (c, r) = (i % w, i / w);
+            let red = if c < w / 2 { 50_000 } else { 20_000 };
+            let blue = if r < h / 2 { 45_000 } else { 15_000 };
+            [red, 30_000, blue]
+        })
+        .collect();
+    write_tiff::<tiff::encoder::colortype::RGB16>(&tif, w as u32, h as u32, &px);
+    let map = |extra: &str| {
+        format!(
+            "map = {{ path = {:?}, domain = [0.0, 0.5] }}{extra}",
+            tif.display().to_string()
+        )
+    };
+    let body = format!(
+        "albedo_map = {{ path = {:?}, domain = [0.0, 0.5] }}",
+        tif.display().to_string()
+    );
+    let spec = SceneSpec {
+        camera_m: [6.0e6, 2.0e6, 1.0e6],
+        render: "map_filter = \"pixel\"",
+        body: &body,
+        ..Default::default()
+    };
+    let band_maps: String = ["R", "G", "B"]
+        .iter()
+        .enumerate()
+        .map(|(c, b)| {
+            format!(
+                "\n[[body.band_map]]\nband = \"{b}\"\nchannel = {c}\n{}\n",
+                map("")
+            )
+        })
+        .collect();
+    let text = with_bands(&spec, "", &RGB) + &band_maps;
+    let cfg = parse(&text);
+    assert_eq!(cfg.scene.body.band_maps.len(), 3);
+    let mut renderer = Renderer::new(0).unwrap();
+    let frame = renderer
+        .render(&cfg.scene, &cfg.pose, &cfg.settings)
+        .unwrap();
+    let sum = |v: &[f64]| v.iter().sum::<f64>();
+    for b in 0..3 {
+        let mut alone = cfg.clone();
+        alone.scene.body.albedo_map = Some(cfg.scene.body.band_map(b).unwrap().clone());
+        alone.scene.body.band_maps.clear();
+        let own = renderer
+            .render(&alone.scene, &alone.pose, &alone.settings)
+            .unwrap();
+        let (got, want) = (frame.band(b), &own.pl);
+        let worst = got
+            .iter()
+            .zip(want)
+            .map(|(g, w)| (g - w).abs())
+            .fold(0.0, f64::max);
+        let peak = want.iter().cloned().fold(0.0, f64::max);
+        eprintln!(
+            "band {b}: total {:.6e} vs its map alone {:.6e}; worst pixel {:.1e} of the peak",
+            sum(got),
+            sum(want),
+            worst / peak
+        );
+        assert!((sum(got) / sum(want) - 1.0).abs() < 1e-9);
+        assert!(worst < 1e-9 * peak);
+    }
+    // The channels differ, and so do the bands (G is the flat one).
+    let (r, g) = (sum(frame.band(0)), sum(frame.band(1)));
+    assert!((r / g - 1.0).abs() > 0.05, "R {r} G {g}");
+
+    // Refusals, by key.
+    let refused = |extra: &str, render: &str| {
+        let s = SceneSpec { render, ..spec };
+        refusal(&(with_bands(&s, "", &RGB) + extra), "<t>").0
+    };
+    let one = |band: &str, extra: &str| {
+        format!("\n[[body.band_map]]\nband = \"{band}\"\n{}\n", map(extra))
+    };
+    assert_eq!(
+        refused(&one("NIR", ""), "map_filter = \"pixel\""),
+        "body.band_map[0].band"
+    );
+    assert_eq!(
+        refused(&(one("R", "") + &one("R", "")), "map_filter = \"pixel\""),
+        "body.band_map[1].band"
+    );
+    assert_eq!(
+        refused(&one("R", "\nchannel = 3"), "map_filter = \"pixel\""),
+        "body.band_map[0].channel"
+    );
+    assert_eq!(
+        refused(&one("R", ""), "map_filter = \"area\""),
+        "render.map_filter"
+    );
+    let no_map = SceneSpec { body: "", ..spec };
+    assert_eq!(
+        refusal(&(with_bands(&no_map, "", &RGB) + &one("R", "")), "<t>").0,
+        "body.band_map[0]"
+    );
+}

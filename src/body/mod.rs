@@ -135,6 +135,17 @@ pub struct Body {
     /// The albedo's spectral shape (`body.reflectance_spectrum`): the albedo and its map hold
     /// at the spectrum's reference wavelength; grey when `None`.
     pub spectrum: Option<crate::radiometry::Reflectance>,
+    /// A map of its own for some of the camera's bands (`[[body.band_map]]`), by band index:
+    /// that band's albedo over its waveband, in place of `albedo_map`, read over each pixel's
+    /// footprint (`render.map_filter = "pixel"`; `render::footprint`).
+    pub band_maps: Vec<(usize, AlbedoMap)>,
+}
+
+impl Body {
+    /// Band `b`'s own albedo map, when it has one.
+    pub fn band_map(&self, b: usize) -> Option<&AlbedoMap> {
+        self.band_maps.iter().find(|(k, _)| *k == b).map(|(_, m)| m)
+    }
 }
 
 /// The radius of the sphere bounding the surface as rendered [m]: the shape's, or a

@@ -220,7 +220,14 @@ impl Validator<'_> {
     fn scene(&self, raw: RawScene) -> R<Config> {
         let sun = self.sun(&raw.sun)?;
         let sun_position_m = self.finite3("sun.position_m", raw.sun.position_m)?;
-        let body = self.body(&raw.body[0])?;
+        let (camera, power_band_m) = self.camera(&raw.camera)?;
+        let band_names: Vec<&str> = camera
+            .detector
+            .bands
+            .iter()
+            .map(|b| b.name.as_str())
+            .collect();
+        let body = self.body(&raw.body[0], &band_names)?;
         if sun_position_m.length() <= body.shape.bounding_radius_m() {
             return self.err(
                 "sun.position_m",
@@ -247,9 +254,15 @@ impl Validator<'_> {
                 );
             }
         }
-        let (camera, power_band_m) = self.camera(&raw.camera)?;
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
         let settings = self.render(&raw.render, &body)?;
+        if !body.band_maps.is_empty() && settings.map_filter != crate::render::MapFilter::Pixel {
+            return self.err(
+                "render.map_filter",
+                format!("{:?}", settings.map_filter).to_lowercase(),
+                "\"pixel\" with body.band_map: each band's map is read over each pixel's footprint",
+            );
+        }
         let stimulator = match &raw.stimulator {
             Some(st) => Some(self.stimulator(st, &camera.intrinsics)?),
             None => None,
@@ -566,7 +579,8 @@ impl Validator<'_> {
         }
     }
 
-    fn body(&self, b: &RawBody) -> R<Body> {
+    /// The body of `b`; `bands` names the camera's bands (for `[[body.band_map]]`).
+    fn body(&self, b: &RawBody, bands: &[&str]) -> R<Body> {
         let (shape, radius_m) =
             match self.choice("body.shape", &b.shape, &["sphere", "ellipsoid", "mesh"])? {
                 "mesh" => {
@@ -698,39 +712,60 @@ impl Validator<'_> {
         let albedo_map = match &b.albedo_map {
             None => None,
             Some(m) => {
-                // Map values are albedos of `albedo_type` (w itself for single_scattering).
                 let map = self.map("body.albedo_map", m)?;
-                let (map, scale_per_value) = match kind {
-                    None => (map, 1.0),
-                    // Hapke's albedos are not linear in w: the map of normal albedos becomes
-                    // a map of w, once, at load.
-                    Some(AlbedoType::Normal) if matches!(brdf, Brdf::Hapke(_)) => {
-                        let values: Vec<f64> = map.values.iter().map(|&v| v as f64).collect();
-                        let w = brdf.scales_for_normal_albedos(&values).or_else(|v| {
-                            self.err(
-                                "body.albedo_map",
-                                format!("a normal albedo of {v}"),
-                                "values this hapke body reaches with w <= 1",
-                            )
-                        })?;
-                        let w_map = map
-                            .with_values(w)
-                            .or_else(|e| self.unusable("body.albedo_map", m, e))?;
-                        (w_map, 1.0)
-                    }
-                    Some(_) if matches!(brdf, Brdf::Hapke(_)) => {
-                        return self.err(
-                            "body.albedo_type",
-                            &b.albedo_type,
-                            "normal or single_scattering with an albedo map on a hapke body",
-                        );
-                    }
-                    // Linear in the scale: the scale that gives an albedo of 1, per unit.
-                    Some(kind) => (map, brdf.with_albedo(1.0, kind).scale()),
-                };
-                Some(crate::body::AlbedoMap::new(map, scale_per_value))
+                Some(self.albedo_map("body.albedo_map", m, map, &brdf, kind, &b.albedo_type)?)
             }
         };
+        let mut band_maps = Vec::new();
+        for (k, bm) in b.band_map.iter().enumerate() {
+            let key = format!("body.band_map[{k}].map");
+            if b.albedo_map.is_none() {
+                return self.err(
+                    &format!("body.band_map[{k}]"),
+                    "a band map without body.albedo_map",
+                    "with body.albedo_map: the geometry is integrated with its mean, each band's \
+                     map read over each pixel",
+                );
+            }
+            let map = match bm.channel {
+                None => self.map(&key, &bm.map)?,
+                Some(c @ 0..=2) => {
+                    let [r, g, bl] = self.map_rgb(&key, &bm.map)?;
+                    [r, g, bl].into_iter().nth(c).expect("0..=2")
+                }
+                Some(c) => {
+                    return self.err(
+                        &format!("body.band_map[{k}].channel"),
+                        c,
+                        "0, 1 or 2 (an RGB file's R, G, B)",
+                    );
+                }
+            };
+            let Some(band) = bands.iter().position(|n| *n == bm.band) else {
+                return self.err(
+                    &format!("body.band_map[{k}].band"),
+                    &bm.band,
+                    &format!("one of the camera's bands ({})", bands.join(", ")),
+                );
+            };
+            if band_maps.iter().any(|(b, _)| *b == band) {
+                return self.err(
+                    &format!("body.band_map[{k}].band"),
+                    &bm.band,
+                    "a band without a map yet (one map per band)",
+                );
+            }
+            if b.reflectance_spectrum.is_some() {
+                return self.err(
+                    &format!("body.band_map[{k}]"),
+                    "with body.reflectance_spectrum",
+                    "maps per band or a reflectance spectrum, not both (a band's map is its \
+                     albedo over its whole band)",
+                );
+            }
+            let albedo = self.albedo_map(&key, &bm.map, map, &brdf, kind, &b.albedo_type)?;
+            band_maps.push((band, albedo));
+        }
         let ellipsoid = match &shape {
             Shape::Ellipsoid(e) => Some(*e),
             _ => None,
@@ -748,7 +783,49 @@ impl Validator<'_> {
             albedo_map,
             relief,
             spectrum,
+            band_maps,
         })
+    }
+
+    /// An albedo map's values as the BRDF's scale: albedos of `kind` (Hapke's normal albedos
+    /// become `w` once, at load), or the scale itself.
+    fn albedo_map(
+        &self,
+        key: &str,
+        m: &raw::RawMap,
+        map: crate::body::maps::Map,
+        brdf: &Brdf,
+        kind: Option<AlbedoType>,
+        albedo_type: &str,
+    ) -> R<crate::body::AlbedoMap> {
+        // Map values are albedos of `albedo_type` (w itself for single_scattering).
+        let (map, scale_per_value) = match kind {
+            None => (map, 1.0),
+            // Hapke's albedos are not linear in w: the map of normal albedos becomes
+            // a map of w, once, at load.
+            Some(AlbedoType::Normal) if matches!(brdf, Brdf::Hapke(_)) => {
+                let values: Vec<f64> = map.values.iter().map(|&v| v as f64).collect();
+                let w = brdf.scales_for_normal_albedos(&values).or_else(|v| {
+                    self.err(
+                        key,
+                        format!("a normal albedo of {v}"),
+                        "values this hapke body reaches with w <= 1",
+                    )
+                })?;
+                let w_map = map.with_values(w).or_else(|e| self.unusable(key, m, e))?;
+                (w_map, 1.0)
+            }
+            Some(_) if matches!(brdf, Brdf::Hapke(_)) => {
+                return self.err(
+                    "body.albedo_type",
+                    albedo_type,
+                    "normal or single_scattering with an albedo map on a hapke body",
+                );
+            }
+            // Linear in the scale: the scale that gives an albedo of 1, per unit.
+            Some(kind) => (map, brdf.with_albedo(1.0, kind).scale()),
+        };
+        Ok(crate::body::AlbedoMap::new(map, scale_per_value))
     }
 
     /// `body.reflectance_spectrum`: a built-in table or one given, and its reference.
@@ -927,7 +1004,14 @@ impl Validator<'_> {
                 "absent: relief is the first body's only",
             );
         }
-        let body = self.body(b)?;
+        if !b.band_map.is_empty() {
+            return self.err(
+                &key("band_map"),
+                "given",
+                "absent: maps per band are the first body's only",
+            );
+        }
+        let body = self.body(b, &[])?;
         let raw_pos = self.need(
             &key("position_m"),
             b.position_m,

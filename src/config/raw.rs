@@ -65,6 +65,9 @@ pub struct RawBody {
     /// `[b, c, B0_C, h_C, B0_S, h_S, theta (rad), filling_factor]`.
     pub hapke: Option<Vec<f64>>,
     pub albedo_map: Option<RawMap>,
+    /// Maps of their own for some of the camera's bands: `[[body.band_map]]` tables.
+    #[serde(default)]
+    pub band_map: Vec<RawBandMap>,
     /// The albedo's spectral shape: `{ table = "moon", reference_nm = 549 }` or
     /// `{ wavelength_nm = [...], value = [...], reference_nm = ... }`.
     pub reflectance_spectrum: Option<RawSpectrum>,
@@ -123,6 +126,16 @@ pub struct RawMesh {
     pub metres_per_unit: Option<f64>,
     /// Rotation from the file's axes to the body frame, scalar first (default: none).
     pub body_from_file_wxyz: Option<[f64; 4]>,
+}
+
+/// One band's own albedo map: `band = "R"`, `map = { path = ..., ... }` (the encoding of
+/// `albedo_map`), and for an RGB file the `channel` (0, 1, 2) to read; else the channels' mean.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawBandMap {
+    pub band: String,
+    pub map: RawMap,
+    pub channel: Option<usize>,
 }
 
 /// A texture map and its encoding (`docs/scene.md`, `body::maps::Encoding`).

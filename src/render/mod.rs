@@ -247,16 +247,28 @@ impl Renderer {
 
 /// For the renderers that cast rays through the camera (meshes, several bodies, the
 /// reference), which have no cloud to grid again: each band with a distortion of its own
-/// (lateral chromatic aberration) gets the image of `render` through a copy of the scene
-/// whose camera has that distortion, in `frame.band_pl`. A full render per such band.
+/// (lateral chromatic aberration) or an albedo map of its own gets the image of `render`
+/// through a copy of the scene whose camera has that distortion and whose body has that map,
+/// in `frame.band_pl`. A full render per such band.
 pub(crate) fn with_band_distortions(
     scene: &Scene,
     frame: &mut Frame,
     mut render: impl FnMut(&Scene) -> Result<Vec<f64>, RenderError>,
 ) -> Result<(), RenderError> {
-    for (b, intr_b) in band_intrinsics(scene) {
+    let own_intr = band_intrinsics(scene);
+    for b in 0..scene.camera.detector.bands.len() {
+        let intr_b = own_intr.iter().find(|(k, _)| *k == b).map(|(_, i)| i);
+        let map_b = scene.body.band_map(b);
+        if intr_b.is_none() && map_b.is_none() {
+            continue;
+        }
         let mut own = scene.clone();
-        own.camera.intrinsics = intr_b;
+        if let Some(i) = intr_b {
+            own.camera.intrinsics = i.clone();
+        }
+        if let Some(m) = map_b {
+            own.body.albedo_map = Some(m.clone());
+        }
         frame.band_pl.push((b, render(&own)?));
     }
     Ok(())
@@ -433,6 +445,14 @@ fn render_in_pool(
     let mut t = StageTimings::default();
     // Under `MapFilter::Pixel` the quadrangles see the map's mean and the footprint step
     // brings the map in per pixel.
+    if !scene.body.band_maps.is_empty() && settings.map_filter != MapFilter::Pixel {
+        return Err(RenderError::BadSettings {
+            field: "map_filter",
+            value: format!("{:?}", settings.map_filter).to_lowercase(),
+            allowed: "\"pixel\" for a body with maps of its own per band (body.band_map): \
+                      they are read over each pixel's footprint",
+        });
+    }
     let (brdf, quad_albedo, pixel_map) = match (&scene.body.albedo_map, settings.map_filter) {
         (Some(a), MapFilter::Pixel) => {
             let s_ref = footprint::reference_scale(a, scene.body.brdf.scale());
@@ -530,9 +550,21 @@ fn render_in_pool(
         let t0 = Instant::now();
         let relief = scene.body.relief.as_ref();
         let shape = &scene.body.shape;
+        // A band with a map of its own but the camera's distortion: the gridded geometry,
+        // before the camera's map comes in.
+        for (b, _) in &scene.body.band_maps {
+            if !band_pl.iter().any(|(k, _)| k == b) {
+                band_pl.push((*b, pl_image.clone()));
+            }
+        }
         footprint::apply(intr, shape, relief, &brdf, a, pose, &mut pl_image);
-        for ((_, intr_b), (_, img)) in band_intr.iter().zip(&mut band_pl) {
-            footprint::apply(intr_b, shape, relief, &brdf, a, pose, img);
+        for (b, img) in &mut band_pl {
+            let intr_b = band_intr
+                .iter()
+                .find(|(k, _)| k == b)
+                .map_or(intr, |(_, i)| i);
+            let map = scene.body.band_map(*b).unwrap_or(a);
+            footprint::apply(intr_b, shape, relief, &brdf, map, pose, img);
         }
         stats.total_pl_image = pl_image.iter().sum();
         t.footprint = ms(t0);

@@ -42,6 +42,12 @@
 //! (a ratio of two BRDFs at the same angles), is tabulated per block over the map's range of
 //! `w` at the angles of the block's most lit and visible line of sight; a single pixel's is
 //! evaluated at its own.
+//!
+//! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
+//! of their own, `[[body.band_map]]`) share the lines of sight, the blocks and the reads'
+//! positions and weights, decided on the finest map's texels; only the map reads (and
+//! Hapke's tables) are per map. A band's map costs its reads, not the lines of sight (which,
+//! through a displaced surface, are most of the step).
 
 use crate::body::{AlbedoMap, Relief, Shape};
 use crate::brdf::{Brdf, Local};
@@ -101,7 +107,8 @@ struct Step<'a> {
     shape: &'a Shape,
     relief: Option<&'a Relief>,
     brdf_ref: &'a Brdf,
-    albedo: &'a AlbedoMap,
+    /// The maps, one per image.
+    maps: Vec<&'a AlbedoMap>,
     pose: &'a Pose,
     s_ref: f64,
     linear: bool,
@@ -159,12 +166,9 @@ impl Step<'_> {
         a / self.s_ref
     }
 
-    /// The pixel's factor from its own line of sight.
-    fn exact(&self, i: usize, j: usize) -> f64 {
-        let p = self.probe(i as f64 + 0.5, j as f64 + 0.5);
-        let a = self
-            .albedo
-            .scale_over_lon_lat(p.lon, p.lat, p.footprint_rad, self.s_ref);
+    /// The pixel's factor under map `m` from the line of sight `p` through its centre.
+    fn exact(&self, m: usize, p: &Probe) -> f64 {
+        let a = self.maps[m].scale_over_lon_lat(p.lon, p.lat, p.footprint_rad, self.s_ref);
         self.ratio(a, &p.local)
     }
 }
@@ -181,21 +185,24 @@ fn wrapped(d: f64) -> f64 {
     }
 }
 
-/// One band of [`BLOCK`] image rows being scaled: its pixels, and what every block of it
-/// reads.
+/// One band of [`BLOCK`] image rows being scaled: its pixels in every image, and what every
+/// block of it reads.
 struct Band<'a> {
-    pixels: &'a mut [f64],
+    /// The band's rows of each image (one per map).
+    pixels: Vec<&'a mut [f64]>,
     width: usize,
     rows: usize,
     /// The band's first image row.
     y0: usize,
-    /// Map texel size in longitude and latitude [rad].
+    /// The finest map's texel size in longitude and latitude [rad].
     dlon: f64,
     dlat: f64,
-    /// The map's range of BRDF scales (Hapke's table spans it).
-    a_lo: f64,
-    a_hi: f64,
+    /// Each map's range of BRDF scales (Hapke's table spans it).
+    ranges: Vec<(f64, f64)>,
     offsets: Vec<(f64, f64)>,
+    /// Per map: Hapke's table of the block, and the pixel's sums of weighted ratios.
+    tables: Vec<[f64; TABLE]>,
+    sums: Vec<f64>,
 }
 
 impl Step<'_> {
@@ -210,11 +217,10 @@ impl Step<'_> {
         if x0 >= x1 || y0 >= y1 {
             return;
         }
-        let lit = (y0..y1).any(|r| {
-            band.pixels[r * w + x0..r * w + x1]
-                .iter()
-                .any(|&v| v != 0.0)
-        });
+        let lit = band
+            .pixels
+            .iter()
+            .any(|img| (y0..y1).any(|r| img[r * w + x0..r * w + x1].iter().any(|&v| v != 0.0)));
         if !lit {
             return;
         }
@@ -265,9 +271,12 @@ impl Step<'_> {
         if !smooth && miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0) {
             for r in y0..y1 {
                 for i in x0..x1 {
-                    let px = &mut band.pixels[r * w + i];
-                    if *px != 0.0 {
-                        *px *= self.exact(i, band.y0 + r);
+                    if band.pixels.iter().all(|img| img[r * w + i] == 0.0) {
+                        continue;
+                    }
+                    let p = self.probe(i as f64 + 0.5, (band.y0 + r) as f64 + 0.5);
+                    for (m, img) in band.pixels.iter_mut().enumerate() {
+                        img[r * w + i] *= self.exact(m, &p);
                     }
                 }
             }
@@ -306,13 +315,11 @@ impl Step<'_> {
         // What each read stands for [rad of latitude]: at most half a texel (the map itself)
         // but where `MAX_READS` caps the reads (then an area-averaged level).
         let read_rad = (len_s / ns as f64).max(len_t / nt as f64) * band.dlat;
-        let (a_lo, a_hi) = (band.a_lo, band.a_hi);
         // Hapke's ratio: tabulated per block, or for a lone pixel (the limb, the terminator)
         // at its own angles.
         let own = !self.linear && size == 1;
-        let tabulated = !self.linear && !own && a_hi > a_lo;
-        let mut table = [0.0; TABLE];
-        if tabulated {
+        let tabulated = |(a_lo, a_hi): (f64, f64)| !self.linear && !own && a_hi > a_lo;
+        if band.ranges.iter().any(|&r| tabulated(r)) {
             // At the angles of the block's most lit and visible line of sight (the centre's
             // may be over the limb or the terminator).
             let light = |p: &&Probe| p.local.mu0.max(0.0) * p.local.mu.max(0.0);
@@ -321,52 +328,56 @@ impl Step<'_> {
                 .chain([&centre])
                 .max_by(|a, b| light(a).total_cmp(&light(b)))
                 .unwrap_or(&centre);
-            for (k, t) in table.iter_mut().enumerate() {
-                let a = a_lo + (a_hi - a_lo) * k as f64 / (TABLE - 1) as f64;
-                *t = self.ratio(a, &best.local);
+            for (table, &(a_lo, a_hi)) in band.tables.iter_mut().zip(&band.ranges) {
+                for (k, t) in table.iter_mut().enumerate() {
+                    let a = a_lo + (a_hi - a_lo) * k as f64 / (TABLE - 1) as f64;
+                    *t = self.ratio(a, &best.local);
+                }
             }
         }
         for r in y0..y1 {
             let t = (r - y0) as f64 / n;
             for i in x0..x1 {
-                let px = &mut band.pixels[r * w + i];
-                if *px == 0.0 {
+                if band.pixels.iter().all(|img| img[r * w + i] == 0.0) {
                     continue;
                 }
                 let s = (i - x0) as f64 / n;
-                // The pixel's weighted mean of the BRDF's ratio over the map: the bilinear map at
-                // `ns x nt` midpoints of the pixel (at the footprint's level beyond
+                // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
+                // map at `ns x nt` midpoints of the pixel (at the footprint's level beyond
                 // `MAX_READS`), each read's ratio (Hapke's is not linear in `w`: the mean of
                 // the ratios, not the ratio of the mean `w`).
-                let (mut sum, mut weights) = (0.0, 0.0);
+                let mut weights = 0.0;
+                band.sums.iter_mut().for_each(|x| *x = 0.0);
                 for (a, b) in &band.offsets {
                     let (s, t) = (s + a, t + b);
                     let weight = lerp(mu0, s, t).max(0.0) * lerp(mu, s, t).max(0.0) + 1e-12;
-                    let a = self.albedo.scale_over_lon_lat(
-                        lerp(lon, s, t),
-                        lerp(lat, s, t),
-                        read_rad,
-                        self.s_ref,
-                    );
-                    sum += weight
-                        * if tabulated {
-                            let x = ((a - a_lo) / (a_hi - a_lo) * (TABLE - 1) as f64)
-                                .clamp(0.0, (TABLE - 1) as f64);
-                            let k = (x as usize).min(TABLE - 2);
-                            let f = x - k as f64;
-                            (1.0 - f) * table[k] + f * table[k + 1]
-                        } else if own {
-                            a
-                        } else {
-                            a / self.s_ref
-                        };
+                    let (lon, lat) = (lerp(lon, s, t), lerp(lat, s, t));
+                    for (m, map) in self.maps.iter().enumerate() {
+                        let a = map.scale_over_lon_lat(lon, lat, read_rad, self.s_ref);
+                        let (a_lo, a_hi) = band.ranges[m];
+                        band.sums[m] += weight
+                            * if tabulated(band.ranges[m]) {
+                                let x = ((a - a_lo) / (a_hi - a_lo) * (TABLE - 1) as f64)
+                                    .clamp(0.0, (TABLE - 1) as f64);
+                                let k = (x as usize).min(TABLE - 2);
+                                let f = x - k as f64;
+                                let table = &band.tables[m];
+                                (1.0 - f) * table[k] + f * table[k + 1]
+                            } else if own {
+                                a
+                            } else {
+                                a / self.s_ref
+                            };
+                    }
                     weights += weight;
                 }
-                *px *= if own {
-                    self.ratio(sum / weights, &c[0].local)
-                } else {
-                    sum / weights
-                };
+                for (img, &sum) in band.pixels.iter_mut().zip(&band.sums) {
+                    img[r * w + i] *= if own {
+                        self.ratio(sum / weights, &c[0].local)
+                    } else {
+                        sum / weights
+                    };
+                }
             }
         }
     }
@@ -390,18 +401,41 @@ pub fn apply(
     pose: &Pose,
     image: &mut [f64],
 ) {
+    let mut layers = [(albedo, image)];
+    apply_maps(intrinsics, shape, relief, brdf_ref, pose, &mut layers);
+}
+
+/// [`apply`] with several maps, each scaling its own image of the same geometry (the
+/// camera's map and bands' own maps): one set of lines of sight and reads for all.
+pub fn apply_maps(
+    intrinsics: &Intrinsics,
+    shape: &Shape,
+    relief: Option<&Relief>,
+    brdf_ref: &Brdf,
+    pose: &Pose,
+    layers: &mut [(&AlbedoMap, &mut [f64])],
+) {
     let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
     let s_ref = brdf_ref.scale();
-    if w == 0 || h == 0 || s_ref <= 0.0 {
+    if w == 0 || h == 0 || s_ref <= 0.0 || layers.is_empty() {
         return;
     }
     let (fx, fy) = intrinsics.focal_px();
+    let maps: Vec<&AlbedoMap> = layers.iter().map(|(m, _)| *m).collect();
+    // The finest map's texels decide the blocks and the reads.
+    let (dlon, dlat) = maps
+        .iter()
+        .map(|m| m.map.spacing_rad())
+        .fold((f64::INFINITY, f64::INFINITY), |(a, b), (c, d)| {
+            (a.min(c), b.min(d))
+        });
+    let ranges: Vec<(f64, f64)> = maps.iter().map(|m| m.scale_range()).collect();
     let step = Step {
         intrinsics,
         shape,
         relief,
         brdf_ref,
-        albedo,
+        maps,
         pose,
         s_ref,
         linear: !matches!(brdf_ref, Brdf::Hapke(_)),
@@ -409,37 +443,43 @@ pub fn apply(
         // footprint by a few percent at most, which only picks the map level).
         ifov: (1.0 / (fx * fy)).sqrt(),
     };
-    let (dlon, dlat) = albedo.map.spacing_rad();
-    let (a_lo, a_hi) = albedo.scale_range();
     let bw = w.div_ceil(BLOCK);
-    image
-        .par_chunks_mut(w * BLOCK)
-        .enumerate()
-        .for_each(|(by, pixels)| {
-            let y0 = by * BLOCK;
-            let fy = y0 as f64 + 0.5;
-            // The corners' lines of sight, above and below the band.
-            let corners: Vec<[Probe; 2]> = (0..=bw)
-                .map(|bx| {
-                    let x = (bx * BLOCK) as f64 + 0.5;
-                    [step.probe(x, fy), step.probe(x, fy + BLOCK as f64)]
-                })
-                .collect();
-            let mut band = Band {
-                rows: pixels.len() / w,
-                pixels,
-                width: w,
-                y0,
-                dlon,
-                dlat,
-                a_lo,
-                a_hi,
-                offsets: Vec::with_capacity(MAX_READS * MAX_READS),
-            };
-            for bx in 0..bw {
-                let [c00, c01] = corners[bx];
-                let [c10, c11] = corners[bx + 1];
-                step.block(&mut band, bx * BLOCK, 0, BLOCK, [c00, c10, c01, c11]);
+    // Each image cut in bands of BLOCK rows; band `k` of every image goes to one task.
+    let mut bands: Vec<Vec<&mut [f64]>> = Vec::new();
+    for (_, image) in layers.iter_mut() {
+        for (k, rows) in image.chunks_mut(w * BLOCK).enumerate() {
+            if bands.len() <= k {
+                bands.push(Vec::with_capacity(step.maps.len()));
             }
-        });
+            bands[k].push(rows);
+        }
+    }
+    bands.into_par_iter().enumerate().for_each(|(by, pixels)| {
+        let y0 = by * BLOCK;
+        let fy = y0 as f64 + 0.5;
+        // The corners' lines of sight, above and below the band.
+        let corners: Vec<[Probe; 2]> = (0..=bw)
+            .map(|bx| {
+                let x = (bx * BLOCK) as f64 + 0.5;
+                [step.probe(x, fy), step.probe(x, fy + BLOCK as f64)]
+            })
+            .collect();
+        let mut band = Band {
+            rows: pixels[0].len() / w,
+            tables: vec![[0.0; TABLE]; pixels.len()],
+            sums: vec![0.0; pixels.len()],
+            pixels,
+            width: w,
+            y0,
+            dlon,
+            dlat,
+            ranges: ranges.clone(),
+            offsets: Vec::with_capacity(MAX_READS * MAX_READS),
+        };
+        for bx in 0..bw {
+            let [c00, c01] = corners[bx];
+            let [c10, c11] = corners[bx + 1];
+            step.block(&mut band, bx * BLOCK, 0, BLOCK, [c00, c10, c01, c11]);
+        }
+    });
 }

@@ -557,8 +557,16 @@ fn render_in_pool(
                 band_pl.push((*b, pl_image.clone()));
             }
         }
-        footprint::apply(intr, shape, relief, &brdf, a, pose, &mut pl_image);
-        for (b, img) in &mut band_pl {
+        // Through the camera's distortion: its map and the bands' own maps, in one pass.
+        let (own_view, camera_view): (Vec<_>, Vec<_>) = band_pl
+            .iter_mut()
+            .partition(|(b, _)| band_intr.iter().any(|(k, _)| k == b));
+        let mut layers = vec![(a, &mut pl_image[..])];
+        for (b, img) in camera_view {
+            layers.push((scene.body.band_map(*b).unwrap_or(a), &mut img[..]));
+        }
+        footprint::apply_maps(intr, shape, relief, &brdf, pose, &mut layers);
+        for (b, img) in own_view {
             let intr_b = band_intr
                 .iter()
                 .find(|(k, _)| k == b)

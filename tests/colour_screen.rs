@@ -352,5 +352,15 @@ fn the_daemon_drives_a_colour_camera_on_a_colour_screen() {
     assert_eq!(code, 200);
     let (colour, _, _) = decode(&body);
     assert_eq!(colour, png::ColorType::Grayscale, "the raw mosaic");
+    // A grey curve cannot drive this camera: refused, the colour one stays; a colour one is
+    // replayed.
+    let grey = std::fs::read("calibration/example_gamma22.csv").unwrap();
+    let (code, body) = http(daemon.http_addr, "PUT", "/calibration", &grey);
+    let text = String::from_utf8_lossy(&body);
+    assert_eq!(code, 422, "{text}");
+    assert!(text.contains("1 F_eff columns"), "{text}");
+    let rgb = std::fs::read("calibration/example_rgb.csv").unwrap();
+    let (code, body) = http(daemon.http_addr, "PUT", "/calibration", &rgb);
+    assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
     daemon.shutdown();
 }

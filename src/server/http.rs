@@ -288,14 +288,25 @@ async fn put_calibration(
     if let Some(refused) = unauthorized(&s, &headers) {
         return refused;
     }
-    let interp = s
-        .scene()
-        .config
-        .stimulator
-        .as_ref()
+    let scene = s.scene();
+    let interp = (scene.config.stimulator.as_ref())
         .map(|st| st.interp)
         .unwrap_or_default();
-    let curve = match Curve::parse(&body, "uploaded", "PUT /calibration", interp) {
+    let detector = &scene.config.scene.camera.detector;
+    let parsed = Curve::parse(&body, "uploaded", "PUT /calibration", interp).and_then(|c| {
+        // A camera of several bands needs a colour curve with the cross-talk of each band.
+        if detector.bands.len() > 1 {
+            crate::stimulator::colour::Crosstalk::for_camera(&c, detector).map_err(|e| {
+                crate::stimulator::calibration::CalibrationError::Bad {
+                    file: "PUT /calibration".into(),
+                    line: 0,
+                    message: e.to_string(),
+                }
+            })?;
+        }
+        Ok(c)
+    });
+    let curve = match parsed {
         // Named by its content hash.
         Ok(mut c) => {
             c.id = format!("uploaded-{}", &c.sha256[..12]);

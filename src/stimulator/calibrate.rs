@@ -177,7 +177,7 @@ pub fn calibrate(
         }
         ramps.push(ramp);
     }
-    let model = Model::fit(bench, &dark, &ramps)?;
+    let model = Model::fit(&dark, &ramps)?;
     let mut points = Vec::new();
     for (c, ramp) in ramps.iter().enumerate() {
         for (&code, r) in codes.iter().zip(ramp) {
@@ -287,11 +287,7 @@ struct Model {
 }
 
 impl Model {
-    fn fit(
-        bench: &dyn Bench,
-        dark: &Reading,
-        ramps: &[Vec<Reading>],
-    ) -> Result<Model, StimulatorError> {
+    fn fit(dark: &Reading, ramps: &[Vec<Reading>]) -> Result<Model, StimulatorError> {
         if ramps.len() == 1 {
             return Ok(Model {
                 dominant: vec![0],
@@ -299,7 +295,7 @@ impl Model {
                 dark_w_m2: vec![dark.feff_w_m2[0]],
             });
         }
-        let bands = bench.detector().bands.len();
+        let bands = dark.feff_w_m2.len();
         let above = |r: &Reading, b: usize| r.feff_w_m2[b] - dark.feff_w_m2[b];
         let dominant: Vec<usize> = ramps
             .iter()

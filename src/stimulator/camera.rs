@@ -207,10 +207,8 @@ impl SimulatedCamera {
             feff_w_m2.extend_from_slice(&plane);
         }
         crate::background::checkpoint();
-        let signal_e_per_s: Vec<f64> = feff_w_m2
-            .iter()
-            .enumerate()
-            .map(|(i, f)| f / self.ks[i / n.max(1)])
+        let signal_e_per_s: Vec<f64> = (feff_w_m2.chunks(n.max(1)).zip(&self.ks))
+            .flat_map(|(plane, k)| plane.iter().map(move |f| f / k))
             .collect();
         let size = (self.camera_px[0], self.camera_px[1]);
         let mut detector = std::borrow::Cow::Borrowed(&self.detector);

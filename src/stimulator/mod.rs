@@ -244,11 +244,6 @@ impl Stimulator {
         }
     }
 
-    /// The screen's planes of codes: 1 (grey) or 3 (R, G, B).
-    pub fn screen_planes(&self) -> usize {
-        self.inverses.len()
-    }
-
     /// The inverse of each primary the screen drives: one, or R, G, B.
     pub fn inverses(&self) -> &[Inverse] {
         &self.inverses
@@ -337,27 +332,24 @@ impl Stimulator {
         let gain = 1.0 / self.config.collimator_transmittance;
         let (mut feff_w_m2, mut region_feff_w_m2) = (Vec::new(), Vec::new());
         if self.resampler.is_identity() {
-            // One pass for both images (one to one: the region is F_eff / T).
+            // One to one: the region is F_eff / T. Band after band, appended in parallel.
             use rayon::prelude::*;
-            let ks = &self.ks;
-            signal_e_per_s
-                .par_iter()
-                .enumerate()
-                .map(|(i, s)| {
-                    let k = ks[i / n.max(1)];
-                    (s * k, s * k * gain)
-                })
-                .unzip_into_vecs(&mut feff_w_m2, &mut region_feff_w_m2);
+            feff_w_m2.reserve(want);
+            region_feff_w_m2.reserve(want);
+            for (s, &k) in signal_e_per_s.chunks(n.max(1)).zip(&self.ks) {
+                feff_w_m2.par_extend(s.par_iter().map(|s| s * k));
+                region_feff_w_m2.par_extend(s.par_iter().map(|s| s * k * gain));
+            }
             t.feff = ms(t0);
         } else {
+            use rayon::prelude::*;
             feff_w_m2.reserve(want);
-            let mut plane = Vec::new();
             for (s, &k) in signal_e_per_s.chunks(n.max(1)).zip(&self.ks) {
-                feff(s, k, &mut plane);
-                feff_w_m2.extend_from_slice(&plane);
+                feff_w_m2.par_extend(s.par_iter().map(|s| s * k));
             }
             t.feff = ms(t0);
             let t0 = Instant::now();
+            let mut plane = Vec::new();
             for f in feff_w_m2.chunks(n.max(1)) {
                 self.resampler.to_screen(f, gain, &mut plane);
                 region_feff_w_m2.extend_from_slice(&plane);
@@ -380,14 +372,9 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// `k` of Eq. 60 [W m^-2 per e-/s]: `h c / (A_cam max(QE T lambda))`, of the camera's
-/// (first) band.
-pub fn feff_factor(detector: &Detector, intrinsics: &Intrinsics) -> f64 {
-    feff_factors(detector, intrinsics)[0]
-}
-
-/// `k` of Eq. 60 of each of the camera's bands, with that band's QE and transmittance: each
-/// band's F_eff is the flux at its own peak of `QE T lambda` that gives its signal.
+/// `k` of Eq. 60 [W m^-2 per e-/s], `h c / (A_cam max(QE T lambda))`, of each of the camera's
+/// bands, with that band's QE and transmittance: each band's F_eff is the flux at its own
+/// peak of `QE T lambda` that gives its signal.
 pub fn feff_factors(detector: &Detector, intrinsics: &Intrinsics) -> Vec<f64> {
     let area = intrinsics.aperture_area_m2();
     detector
@@ -395,15 +382,6 @@ pub fn feff_factors(detector: &Detector, intrinsics: &Intrinsics) -> Vec<f64> {
         .iter()
         .map(|b| H * C / (area * max_qe_t_lambda(&b.qe, &b.transmittance)))
         .collect()
-}
-
-/// F_eff per pixel [W/m^2] from the signal per pixel [e-/s] (Eq. 58), in parallel.
-pub fn feff(signal_e_per_s: &[f64], k: f64, out: &mut Vec<f64>) {
-    use rayon::prelude::*;
-    signal_e_per_s
-        .par_iter()
-        .map(|s| s * k)
-        .collect_into_vec(out);
 }
 
 #[cfg(test)]
@@ -452,7 +430,7 @@ mod tests {
             noise: Default::default(),
             seed: 0,
         };
-        let k = feff_factor(&det, &intr);
+        let k = feff_factors(&det, &intr)[0];
         let flux = 2.5e-9; // W/m^2
         let s = flux * intr.aperture_area_m2() * m / (H * C);
         assert!((k * s / flux - 1.0).abs() < 1e-12);

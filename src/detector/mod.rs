@@ -191,6 +191,19 @@ impl Detector {
         pl.par_iter().map(|&x| x * signal_factor).collect()
     }
 
+    /// Every band's signal `pl(b) * factors[b]` [e-/s] (Eq. 45 per band), band after band,
+    /// into `signal` (appended in parallel: no zeroing of the cube first).
+    pub fn signal_into<'a>(
+        pl: impl Fn(usize) -> &'a [f64],
+        factors: &[f64],
+        signal: &mut Vec<f64>,
+    ) {
+        signal.clear();
+        for (b, &k) in factors.iter().enumerate() {
+            signal.par_extend(pl(b).par_iter().map(|&x| x * k));
+        }
+    }
+
     /// A rendered frame through this detector: band `b`'s signal is `pl(b) * factors[b]`
     /// [e-/s] (Eq. 45 per band; `pl(b)` is the band's (P/L) image of `size`, the same image
     /// for every band unless a band's own distortion moved it). Returns the signal of every
@@ -220,11 +233,7 @@ impl Detector {
         dn: &mut Vec<u16>,
     ) {
         let n = size.0 * size.1;
-        // Appended in parallel: no zeroing of the cube first.
-        signal.clear();
-        for (b, &k) in factors.iter().enumerate() {
-            signal.par_extend(pl(b).par_iter().map(|&x| x * k));
-        }
+        Detector::signal_into(&pl, factors, signal);
         dn.clear();
         dn.resize(n * self.dn_planes(), 0);
         match self.layout {

@@ -159,17 +159,9 @@ impl FrameMaker {
         let t0 = Instant::now();
         // Eq. 45 per band: one plane per band (each band's own image when its distortion
         // moved it).
+        let mut signal = Vec::new();
         let factors = cfg.scene.band_factors();
-        let signal = if factors.len() == 1 {
-            cfg.scene.camera.detector.signal(&frame.pl, factors[0])
-        } else {
-            use rayon::prelude::*;
-            let mut signal = Vec::with_capacity(frame.pl.len() * factors.len());
-            for (b, &k) in factors.iter().enumerate() {
-                signal.par_extend(frame.band(b).par_iter().map(|&x| x * k));
-            }
-            signal
-        };
+        crate::detector::Detector::signal_into(|b| frame.band(b), &factors, &mut signal);
         t.signal = ms(t0);
         let t0 = Instant::now();
         let stimulator = match &self.stimulator {

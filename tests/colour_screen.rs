@@ -333,6 +333,14 @@ fn the_daemon_drives_a_colour_camera_on_a_colour_screen() {
         let info = reader.next_frame(&mut buf).unwrap();
         (info.color_type, info.bit_depth, buf)
     };
+    // /status says what the camera frames hold.
+    let (code, body) = http(daemon.http_addr, "GET", "/status", b"");
+    assert_eq!(code, 200);
+    let status: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(
+        status["camera"],
+        serde_json::json!({"bands": ["R", "G", "B"], "mosaic": "RGGB"})
+    );
     let (code, body) = http(daemon.http_addr, "GET", "/frame/latest.png", b"");
     assert_eq!(code, 200);
     let (colour, depth, _) = decode(&body);

@@ -121,6 +121,15 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         }),
     };
     let (images_made, captures_made) = s.views.made();
+    // What a camera_frame holds: the bands' planes in this order, or the raw mosaic.
+    let det = &scene.config.scene.camera.detector;
+    let camera = json!({
+        "bands": det.bands.iter().map(|b| b.name.as_str()).collect::<Vec<_>>(),
+        "mosaic": match det.layout {
+            crate::detector::Layout::Bayer(order) => Some(order.name()),
+            crate::detector::Layout::Planes => None,
+        },
+    });
     let access = json!({
         "token": s.access.requires_token(),
         "insecure": s.access.insecure(),
@@ -143,6 +152,7 @@ async fn status(State(s): State<Arc<Shared>>) -> Response {
         "config": {"source": scene.label, "sha256": scene.sha256},
         "runtime": s.runtime(),
         "presenter": s.presenter,
+        "camera": camera,
         "latest_frame_id": latest,
         "dem_horizon": horizon,
         "last_frame": last_frame,

@@ -8,7 +8,6 @@
 //! does); without them the test fails and says so.
 
 mod common;
-use common::rendered_signal;
 use optistim::config;
 use optistim::stimulator::Stimulator;
 use std::io::{BufRead, BufReader};
@@ -145,19 +144,18 @@ fn x_session(
 }
 
 /// Reads an XWD dump (X11's `XWDFileHeader`, big-endian, then the colour map and the pixels)
-/// of a 24/32-bit TrueColor screen: the red channel of every pixel.
-fn xwd_red(bytes: &[u8]) -> (usize, usize, Vec<u8>) {
+/// of a 24/32-bit TrueColor screen: the red, green and blue channels of every pixel.
+fn xwd_rgb(bytes: &[u8]) -> (usize, usize, [Vec<u8>; 3]) {
     let field = |i: usize| u32::from_be_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
     let (header_size, width, height) = (field(0) as usize, field(4) as usize, field(5) as usize);
     let byte_order = field(7); // 0: LSB first
     let bits_per_pixel = field(11);
     let bytes_per_line = field(12) as usize;
-    let red_mask = field(14);
+    let masks = [field(14), field(15), field(16)];
     let ncolors = field(19) as usize;
     assert_eq!(bits_per_pixel, 32, "expected a 32-bit-per-pixel dump");
     let data = &bytes[header_size + 12 * ncolors..];
-    let shift = red_mask.trailing_zeros();
-    let mut red = Vec::with_capacity(width * height);
+    let mut rgb: [Vec<u8>; 3] = Default::default();
     for row in data.chunks(bytes_per_line).take(height) {
         for px in row[..4 * width].chunks_exact(4) {
             let b: [u8; 4] = px.try_into().unwrap();
@@ -166,28 +164,31 @@ fn xwd_red(bytes: &[u8]) -> (usize, usize, Vec<u8>) {
             } else {
                 u32::from_be_bytes(b)
             };
-            red.push(((v & red_mask) >> shift) as u8);
+            for (plane, mask) in rgb.iter_mut().zip(masks) {
+                plane.push(((v & mask) >> mask.trailing_zeros()) as u8);
+            }
         }
     }
-    (width, height, red)
+    (width, height, rgb)
 }
 
-#[test]
-fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
-    let (_turn, _xvfb, display, _wm, xdg) = x_session("w");
-
-    // The stimulator scene on a 1280 x 1024 screen at 8 bit, rounded (no dither).
-    let dir = std::env::temp_dir().join(format!("optistim-window-{}", std::process::id()));
+/// `config_file`'s stimulator scene on a 1280 x 1024 screen at 8 bit, rounded (no dither),
+/// shown by `optistim show` fullscreen: a screenshot must show the CPU reference's codes, a
+/// grey screen's in every channel, a colour screen's R, G, B in the red, green and blue
+/// channels, within 1 LSB.
+fn fullscreen_shows_the_expected_dn(config_file: &str, calibration: &str, tag: &str) {
+    let (_turn, _xvfb, display, _wm, xdg) = x_session(tag);
+    let dir = std::env::temp_dir().join(format!("optistim-window-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let calibration = std::fs::canonicalize("calibration/example_gamma22.csv").unwrap();
-    let scene = std::fs::read_to_string("config/stimulator.toml")
+    let absolute = std::fs::canonicalize(format!("calibration/{calibration}")).unwrap();
+    let scene = std::fs::read_to_string(config_file)
         .unwrap()
         .replace("[1920, 1200]", "[1280, 1024]")
         .replace("screen_bit_depth = 10", "screen_bit_depth = 8")
         .replace("dither = \"ordered\"", "dither = \"none\"")
         .replace(
-            "\"../calibration/example_gamma22.csv\"",
-            &format!("{:?}", calibration.display().to_string()),
+            &format!("\"../calibration/{calibration}\""),
+            &format!("{:?}", absolute.display().to_string()),
         );
     let scene_path = dir.join("scene.toml");
     std::fs::write(&scene_path, scene).unwrap();
@@ -195,11 +196,19 @@ fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
     let st = cfg.stimulator.clone().unwrap();
     assert_eq!(st.screen_px, SCREEN);
     let cam = &cfg.scene.camera;
+    let frame = optistim::render::Renderer::new(0)
+        .unwrap()
+        .render(&cfg.scene, &cfg.pose, &cfg.settings)
+        .unwrap();
+    let size = (frame.width, frame.height);
+    let (signal, _) = cfg.scene.record(|b| frame.band(b), size, 0);
     let want = Stimulator::new(&st, &cam.intrinsics, &cam.detector)
         .unwrap()
-        .process(&rendered_signal(&cfg))
+        .process(&signal)
         .unwrap()
         .screen_dn;
+    let n = SCREEN[0] * SCREEN[1];
+    let planes = want.len() / n;
 
     let mut show = Reaped(
         Command::new(env!("CARGO_BIN_EXE_optistim"))
@@ -239,24 +248,29 @@ fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
             .output()
             .expect("run xwd");
         assert!(shot.status.success(), "xwd failed");
-        let (w, h, red) = xwd_red(&shot.stdout);
+        let (w, h, rgb) = xwd_rgb(&shot.stdout);
         assert_eq!([w, h], SCREEN);
         let (mut equal, mut one, mut worse) = (0usize, 0usize, 0usize);
-        for (&got, &exp) in red.iter().zip(&want) {
-            match (got as i32 - exp as i32).abs() {
-                0 => equal += 1,
-                1 => one += 1,
-                _ => worse += 1,
+        for (c, channel) in rgb.iter().enumerate() {
+            let expected = &want[(c % planes) * n..(c % planes + 1) * n];
+            for (&got, &exp) in channel.iter().zip(expected) {
+                match (got as i32 - exp as i32).abs() {
+                    0 => equal += 1,
+                    1 => one += 1,
+                    _ => worse += 1,
+                }
             }
         }
-        last = format!("{equal} px equal, {one} within 1 LSB, {worse} worse");
+        last = format!("{equal} samples equal, {one} within 1 LSB, {worse} worse");
         if worse == 0 {
             eprintln!(
                 "screenshot after {:.1} s: {last}",
                 t0.elapsed().as_secs_f64()
             );
-            // The image is there, not a black screen: the Moon's disk is lit.
-            assert!(red.iter().filter(|&&v| v > 0).count() > 400_000);
+            // The image is there, not a black screen: the Moon's disk is lit in every channel.
+            for channel in &rgb {
+                assert!(channel.iter().filter(|&&v| v > 0).count() > 400_000);
+            }
             let _ = std::fs::remove_dir_all(&dir);
             let _ = std::fs::remove_dir_all(&xdg);
             return;
@@ -264,6 +278,18 @@ fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
         std::thread::sleep(Duration::from_millis(500));
     }
     panic!("the screen never showed the expected DN: {last}");
+}
+
+#[test]
+fn a_fullscreen_window_under_xvfb_shows_the_expected_dn() {
+    fullscreen_shows_the_expected_dn("config/stimulator.toml", "example_gamma22.csv", "w");
+}
+
+/// The colour screen of `config/stimulator_rgb.toml` through the window's render pass
+/// (`fs_rgb`): each primary's codes in its own channel.
+#[test]
+fn a_colour_screen_in_a_fullscreen_window_shows_each_primary() {
+    fullscreen_shows_the_expected_dn("config/stimulator_rgb.toml", "example_rgb.csv", "c");
 }
 
 /// The daemon in window mode under Xvfb, streamed 50 NRHO poses in lockstep (automated, as a
@@ -362,7 +388,7 @@ fn the_daemon_in_window_mode_streams_poses_in_lockstep_under_xvfb() {
             .args(["-root", "-silent", "-display", &display])
             .output()
             .expect("run xwd");
-        let (w, h, red) = xwd_red(&shot.stdout);
+        let (w, h, [red, _, _]) = xwd_rgb(&shot.stdout);
         assert_eq!([w, h], SCREEN);
         let worse = red
             .iter()

@@ -232,8 +232,21 @@ impl Detector {
         signal: &mut Vec<f64>,
         dn: &mut Vec<u16>,
     ) {
-        let n = size.0 * size.1;
         Detector::signal_into(&pl, factors, signal);
+        self.expose_bands(signal, size, frame_id, dn);
+    }
+
+    /// The DN the camera hands out for every band's signal (`bands x height x width`, band
+    /// after band) [e-/s]: one image per band, each blurred by its band's PSF, its noises from
+    /// streams of its own; or the Bayer mosaic, each pixel its band's.
+    pub fn expose_bands(
+        &self,
+        signal: &[f64],
+        size: (usize, usize),
+        frame_id: u64,
+        dn: &mut Vec<u16>,
+    ) {
+        let n = size.0 * size.1;
         dn.clear();
         dn.resize(n * self.dn_planes(), 0);
         match self.layout {
@@ -246,7 +259,7 @@ impl Detector {
             }
             Layout::Bayer(order) => {
                 // Each band blurred by its own optics, then each pixel keeps its filter's.
-                let blurred: Vec<std::borrow::Cow<[f64]>> = (0..factors.len())
+                let blurred: Vec<std::borrow::Cow<[f64]>> = (0..self.bands.len())
                     .map(|b| {
                         let s = &signal[b * n..(b + 1) * n];
                         let sigma = self.band_psf_sigma_px(b);

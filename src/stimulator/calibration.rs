@@ -527,25 +527,34 @@ enum Place {
     Above,
 }
 
+impl Place {
+    /// `f` against `[f_lo, f_hi]`; a NaN is below.
+    #[inline(always)]
+    fn of(f: f64, (f_lo, f_hi): (f64, f64)) -> Place {
+        if f >= f_lo && f <= f_hi {
+            Place::Inside
+        } else if f > f_hi {
+            Place::Above
+        } else {
+            Place::Below
+        }
+    }
+}
+
 impl ClipCounts {
     /// Places `f` against `[f_lo, f_hi]` and counts it when it is outside: no light at all is
     /// `black`, above zero (or negative, or NaN: never expected) but below the dark level is
     /// `below_dark`, above the maximum `above_max`.
     #[inline(always)]
-    fn classify(&mut self, f: f64, (f_lo, f_hi): (f64, f64)) -> Place {
-        if f >= f_lo && f <= f_hi {
-            Place::Inside
-        } else if f > f_hi {
-            self.above_max += 1;
-            Place::Above
-        } else {
-            if f == 0.0 {
-                self.black += 1;
-            } else {
-                self.below_dark += 1;
-            }
-            Place::Below
+    fn classify(&mut self, f: f64, range: (f64, f64)) -> Place {
+        let place = Place::of(f, range);
+        match place {
+            Place::Inside => {}
+            Place::Above => self.above_max += 1,
+            Place::Below if f == 0.0 => self.black += 1,
+            Place::Below => self.below_dark += 1,
         }
+        place
     }
 
     /// Solves pixel `p` of a region (`n` pixels per band plane) for the primaries' F_eff and
@@ -560,16 +569,7 @@ impl ClipCounts {
         p: usize,
     ) -> ([f64; PRIMARIES], [Place; PRIMARIES]) {
         let f = crosstalk.primaries(|b| region[b * n + p]);
-        let places = [0, 1, 2].map(|c| {
-            let (lo, hi) = inverses[c].range;
-            if f[c] >= lo && f[c] <= hi {
-                Place::Inside
-            } else if f[c] > hi {
-                Place::Above
-            } else {
-                Place::Below
-            }
-        });
+        let places = [0, 1, 2].map(|c| Place::of(f[c], inverses[c].range));
         if (0..crosstalk.bands()).all(|b| region[b * n + p] == 0.0) {
             self.black += 1;
         } else if places.iter().any(|p| matches!(p, Place::Above)) {

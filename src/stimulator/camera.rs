@@ -11,7 +11,7 @@
 //! hands out its planes or its Bayer mosaic as the renderer's camera does.
 
 use super::calibration::Curve;
-use super::colour::Crosstalk;
+use super::colour::{Crosstalk, PRIMARIES};
 use super::screen::Resampler;
 use super::{StimulatorConfig, StimulatorError, feff_factors};
 use crate::camera::Intrinsics;
@@ -54,9 +54,7 @@ impl SimulatedCamera {
         intrinsics: &Intrinsics,
         detector: &Detector,
     ) -> Result<SimulatedCamera, StimulatorError> {
-        let colour = (detector.bands.len() > 1)
-            .then(|| Crosstalk::for_camera(&true_response, detector))
-            .transpose()?;
+        let colour = Crosstalk::of_screen(&true_response, detector)?;
         let camera_px = [intrinsics.width_px as usize, intrinsics.height_px as usize];
         let resampler = Resampler::new(camera_px, config.scale);
         let [rw, rh] = resampler.region_px();
@@ -70,7 +68,7 @@ impl SimulatedCamera {
                 (1.0 - (1.0 - config.corner_gain) * r2) * config.collimator_transmittance
             })
             .collect();
-        let primaries = if colour.is_some() { 3 } else { 1 };
+        let primaries = if colour.is_some() { PRIMARIES } else { 1 };
         Ok(SimulatedCamera {
             emitted_per_code: (0..primaries)
                 .map(|c| emitted_per_code(&true_response, c, config.levels()))
@@ -216,15 +214,7 @@ impl SimulatedCamera {
             detector.to_mut().exposure_s = t;
         }
         let mut dn = Vec::new();
-        if self.ks.len() == 1 {
-            detector.expose(&signal_e_per_s, size, frame_id, &mut dn);
-        } else {
-            // The signal is already each band's: the detector takes it with factors of 1.
-            let ones = vec![1.0; self.ks.len()];
-            let band = |b: usize| &signal_e_per_s[b * n..(b + 1) * n];
-            let mut signal = Vec::new();
-            detector.image_into(band, size, &ones, frame_id, &mut signal, &mut dn);
-        }
+        detector.expose_bands(&signal_e_per_s, size, frame_id, &mut dn);
         Ok(Capture {
             feff_w_m2,
             signal_e_per_s,

@@ -76,6 +76,18 @@ impl Crosstalk {
         Ok(Crosstalk { x, p })
     }
 
+    /// What `curve` is to `detector`: `None` for a camera of one band, which a grey screen
+    /// drives (a colour curve's first column); a camera of several bands needs a colour screen,
+    /// and gets its cross-talk ([`Crosstalk::for_camera`]).
+    pub fn of_screen(
+        curve: &Curve,
+        detector: &Detector,
+    ) -> Result<Option<Crosstalk>, StimulatorError> {
+        (detector.bands.len() > 1)
+            .then(|| Crosstalk::for_camera(curve, detector))
+            .transpose()
+    }
+
     /// The matrix of a colour curve for `detector`'s bands, read by band name from the
     /// curve's `# crosstalk` lines.
     pub fn for_camera(curve: &Curve, detector: &Detector) -> Result<Crosstalk, StimulatorError> {

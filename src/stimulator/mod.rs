@@ -184,14 +184,14 @@ impl Stimulator {
         detector: &Detector,
         levels: u32,
     ) -> Result<(Option<Crosstalk>, Vec<Inverse>), StimulatorError> {
-        if detector.bands.len() == 1 {
-            return Ok((None, vec![curve.inverse(0, levels)]));
-        }
-        let colour = Crosstalk::for_camera(curve, detector)?;
-        let inverses = (0..colour::PRIMARIES)
-            .map(|c| curve.inverse(c, levels))
-            .collect();
-        Ok((Some(colour), inverses))
+        let colour = Crosstalk::of_screen(curve, detector)?;
+        let primaries = if colour.is_some() {
+            colour::PRIMARIES
+        } else {
+            1
+        };
+        let inverses = (0..primaries).map(|c| curve.inverse(c, levels)).collect();
+        Ok((colour, inverses))
     }
 
     pub fn config(&self) -> &StimulatorConfig {

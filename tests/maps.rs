@@ -422,14 +422,30 @@ fn body_of(brdf: &str) -> &'static str {
 /// pixel), `render.map_filter` set to `filter`.
 fn fine_map_scene(brdf: &str, filter: &str) -> optistim::config::Config {
     let render = format!("map_filter = \"{filter}\"");
+    fine_map_scene_from(
+        brdf,
+        &render,
+        SceneSpec::default().camera_m,
+        [AU * 0.5, AU * 3f64.sqrt() / 2.0, 0.0],
+    )
+}
+
+/// [`fine_map_scene`] with its `[render]` keys, camera and Sun [m] given.
+fn fine_map_scene_from(
+    brdf: &str,
+    render: &str,
+    camera_m: [f64; 3],
+    sun_m: [f64; 3],
+) -> optistim::config::Config {
     let mut cfg = SceneSpec {
         brdf,
         body: body_of(brdf),
         albedo: 0.2,
-        sun_m: [AU * 0.5, AU * 3f64.sqrt() / 2.0, 0.0],
+        camera_m,
+        sun_m,
         resolution: [128, 128],
         focal_m: 0.003,
-        render: &render,
+        render,
         ..Default::default()
     }
     .config();
@@ -513,4 +529,29 @@ fn every_map_filter_renders_a_uniform_map_as_the_constant() {
             );
         }
     }
+}
+
+/// Issue 15: the textured Hapke Moon's total stays within the default budget (1e-4) where
+/// the map is hardest to read over pixels: far (a disk 110 px across) and looking down at a pole
+/// (the NRHO's apolune view, at 86 deg of phase), where longitude changes too fast for blocks
+/// of pixels to be interpolated and the limb's pixels see strips of surface far longer than
+/// themselves. Before the reads were weighted by radiance, cast over the limb and averaged
+/// through Hapke's curvature, this frame's total sat at -8e-4 (`src/render/footprint.rs`).
+#[test]
+fn the_textured_hapke_moon_over_a_pole_keeps_its_total() {
+    use optistim::fidelity::metrics::frame_error;
+    use optistim::raycast::reference::{self, ReferenceSettings};
+    let d = 10.0 * R_MOON;
+    let cfg = fine_map_scene_from(
+        "hapke",
+        "map_filter = \"pixel\"\npoints_per_pixel = 4.0\nboundary_nodes = 8",
+        [-0.184 * d, 0.0, -0.983 * d],
+        [-0.147 * AU, -0.989 * AU, -0.031 * AU],
+    );
+    let r = reference::render(&cfg.scene, &cfg.pose, &ReferenceSettings::default()).unwrap();
+    let (_, pl) = total(&cfg);
+    let e = frame_error(&pl, &r.frame.pl, 128, 128);
+    eprintln!("Hapke over a pole: {e:?}");
+    assert!(e.total.abs() < 1e-4, "{e:?}");
+    assert!(e.median < 3e-3, "{e:?}");
 }

@@ -202,22 +202,21 @@ impl Step<'_> {
         let a = self.maps[m].scale_over_lon_lat(p.lon, p.lat, p.footprint_rad, self.s_ref);
         self.ratio(a, &p.local)
     }
-}
 
-impl Step<'_> {
     /// Scales pixel `i` of band row `r` (image row centre `v`) from reads cast, not
     /// interpolated: the map read along [`CAST`] x [`CAST`] lines of sight through the pixel,
     /// each weighted by its radiance at the reference scale, `f_r mu0` (0 where it misses the
-    /// body or is unlit), each read's ratio at its own angles. Falls back to one read at the
-    /// pixel centre, at its footprint's level, where none of them meets the lit, seen body.
+    /// body or is unlit); Hapke's ratio over them by [`Step::mean_ratio`] at their weighted
+    /// mean angles. Falls back to one read at the pixel centre, at its footprint's level,
+    /// where none of them meets the lit, seen body.
     fn cast_pixel(&self, band: &mut Band, i: usize, r: usize, v: f64) {
         let w = band.width;
         let mut weights = 0.0;
         band.sums.iter_mut().for_each(|x| *x = 0.0);
         band.squares.iter_mut().for_each(|x| *x = 0.0);
-        // The reads' weighted mean normal, Sun and camera directions: Hapke's ratio is taken
-        // there.
-        let mut mean = Local::new(DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+        // The reads' weighted sums of normals, Sun and camera directions: Hapke's ratio is
+        // taken at their means.
+        let (mut n, mut sun, mut cam) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
         let k = CAST as f64;
         for b in 0..CAST {
             for a in 0..CAST {
@@ -237,14 +236,14 @@ impl Step<'_> {
                     band.sums[m] += weight * a;
                     band.squares[m] += weight * a * a;
                 }
-                mean.n += weight * p.local.n;
-                mean.s += weight * p.local.s;
-                mean.c += weight * p.local.c;
+                n += weight * p.local.n;
+                sun += weight * p.local.s;
+                cam += weight * p.local.c;
                 weights += weight;
             }
         }
         if weights > 0.0 {
-            let local = Local::new(mean.n.normalize(), mean.s.normalize(), mean.c.normalize());
+            let local = Local::new(n.normalize(), sun.normalize(), cam.normalize());
             for ((img, &sum), &square) in band.pixels.iter_mut().zip(&band.sums).zip(&band.squares)
             {
                 img[r * w + i] *= self.mean_ratio(sum / weights, square / weights, &local);
@@ -261,18 +260,22 @@ impl Step<'_> {
     /// mean is `mean` and mean square `square`: to second order in their spread, the ratio's
     /// mean at `mean -/+ sd` (the BRDF's curvature in its scale, which Hapke's has; exact for
     /// a ratio quadratic in `a`).
+    ///
+    /// Where `local` is unlit or unseen (a pixel over the terminator or the limb) the ratio is
+    /// taken grazing ([`GRAZING`]), its limit there.
     fn mean_ratio(&self, mean: f64, square: f64, local: &Local) -> f64 {
-        let sd = (square - mean * mean).max(0.0).sqrt();
-        if self.linear || sd == 0.0 {
-            return self.ratio(mean, local);
-        }
         let local = Local {
             mu0: local.mu0.max(GRAZING),
             mu: local.mu.max(GRAZING),
             ..*local
         };
         let ratio = self.ratio_at(&local);
-        0.5 * (ratio((mean - sd).max(0.0)) + ratio(mean + sd))
+        let sd = (square - mean * mean).max(0.0).sqrt();
+        if self.linear || sd == 0.0 {
+            ratio(mean)
+        } else {
+            0.5 * (ratio((mean - sd).max(0.0)) + ratio(mean + sd))
+        }
     }
 }
 

@@ -28,8 +28,8 @@
 //! over the image, not the surface, and a point's share of the pixel's power per unit of image
 //! is its radiance, `f_r mu0` (the variation of `f_r` inside a lit pixel is left out). Weighted
 //! by `mu0 mu`, the power per unit of surface, the reads undercounted the grazing side of
-//! every pixel near the limb (`tests/maps.rs`: 2e-3 at the median on a map that changes by
-//! 40 % within 4 texels).
+//! every pixel near the limb. (`tests/maps.rs` measures the step: 2e-3 at the median on a
+//! map that changes by 40 % within 4 texels.)
 //!
 //! Cost. Casting every pixel's line of sight took 75 ms a megapixel on 2 cores, more than the
 //! render. The image is therefore cut in blocks of 8 x 8 pixels: lines of sight are cast at
@@ -44,7 +44,9 @@
 //! square root, or at a pole), casts its reads instead ([`CAST`] x [`CAST`] lines of sight,
 //! each weighted by its own `f_r mu0`, 0 where it misses). Interpolating them there, or one
 //! read at the footprint's level, put the lunar limb's last pixels 2.8 % low on the textured
-//! Hapke Moon at 71,000 km, and its total 2e-4 low.
+//! Hapke Moon at 71,000 km, and its total 2e-4 low. Those pixels (about 2,000 there) and
+//! the second Hapke evaluation of every single pixel cost the NRHO's far frames 13-15 ms
+//! (`docs/performance.md`).
 //!
 //! Hapke's ratio, which depends on the geometry weakly (a ratio of two BRDFs at the same
 //! angles), is tabulated per block over the map's range of `w` at the angles of the block's

@@ -532,11 +532,12 @@ fn every_map_filter_renders_a_uniform_map_as_the_constant() {
 }
 
 /// Issue 15: the textured Hapke Moon's total stays within the default budget (1e-4) where
-/// the map is hardest to read over pixels: far (a disk 110 px across) and looking down at a pole
-/// (the NRHO's apolune view, at 86 deg of phase), where longitude changes too fast for blocks
-/// of pixels to be interpolated and the limb's pixels see strips of surface far longer than
-/// themselves. Before the reads were weighted by radiance, cast over the limb and averaged
-/// through Hapke's curvature, this frame's total sat at -8e-4 (`src/render/footprint.rs`).
+/// the map is hardest to read over pixels: far (a disk 110 px across) and looking down at a
+/// pole (the NRHO's apolune view, at 86 deg of phase), where longitude changes too fast for
+/// blocks of pixels to be interpolated and the limb's pixels see strips of surface far longer
+/// than themselves. Before the reads were weighted by radiance, cast over the limb and
+/// averaged through Hapke's curvature, this scene's total was off by 4.4e-4 (now 1.8e-5;
+/// `src/render/footprint.rs`).
 #[test]
 fn the_textured_hapke_moon_over_a_pole_keeps_its_total() {
     use optistim::fidelity::metrics::frame_error;

@@ -422,33 +422,19 @@ impl Step<'_> {
         // at its own angles.
         let own = !self.linear && size == 1;
         // A single pixel's angles: its centre's, or where that is unlit or unseen (the
-        // terminator, the limb) its most lit and visible neighbour's, at least grazing: the
-        // ratio's limit there, not the linear models' `a / s_ref`.
-        let own_local = {
-            let light = |p: &Probe| p.local.mu0.max(0.0) * p.local.mu.max(0.0);
-            let best = if light(&c[0]) > 0.0 {
-                &c[0]
-            } else {
-                c.iter()
-                    .max_by(|a, b| light(a).total_cmp(&light(b)))
-                    .unwrap_or(&c[0])
-            };
-            best.local
+        // terminator) its most lit and visible neighbour's; [`Step::mean_ratio`] takes them
+        // at least grazing.
+        let own_local = if own {
+            lit_or_brightest(&c[0], &c).local
+        } else {
+            c[0].local
         };
         let tabulated = |(a_lo, a_hi): (f64, f64)| !self.linear && !own && a_hi > a_lo;
         if band.ranges.iter().any(|&r| tabulated(r)) {
             // At the angles of the block's centre, where it is lit and seen (the ratio varies
             // smoothly over the block: the centre's is its mean to second order), else of
             // its most lit and visible corner.
-            let light = |p: &&Probe| p.local.mu0.max(0.0) * p.local.mu.max(0.0);
-            let best = if light(&&centre) > 0.0 {
-                &centre
-            } else {
-                c.iter()
-                    .max_by(|a, b| light(a).total_cmp(&light(b)))
-                    .unwrap_or(&centre)
-            };
-            let ratio = self.ratio_at(&best.local);
+            let ratio = self.ratio_at(&lit_or_brightest(&centre, &c).local);
             for (table, &(a_lo, a_hi)) in band.tables.iter_mut().zip(&band.ranges) {
                 for (k, t) in table.iter_mut().enumerate() {
                     *t = ratio(a_lo + (a_hi - a_lo) * k as f64 / (TABLE - 1) as f64);
@@ -464,8 +450,8 @@ impl Step<'_> {
                 let s = (i - x0) as f64 / n;
                 // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
                 // map at `ns x nt` midpoints of the pixel (at the footprint's level beyond
-                // `MAX_READS`), each read's ratio (Hapke's is not linear in `w`: the mean of
-                // the ratios, not the ratio of the mean `w`).
+                // `MAX_READS`), each read's ratio from the block's table, or a single pixel's
+                // over the mean and spread of its reads (Hapke's is not linear in `w`).
                 let mut weights = 0.0;
                 band.sums.iter_mut().for_each(|x| *x = 0.0);
                 band.squares.iter_mut().for_each(|x| *x = 0.0);
@@ -506,10 +492,24 @@ impl Step<'_> {
     }
 }
 
+/// `first` where it is lit and seen, else the most lit and visible of `others` (by
+/// `mu0 mu`): the angles a Hapke ratio is taken at.
+fn lit_or_brightest<'p>(first: &'p Probe, others: &'p [Probe]) -> &'p Probe {
+    let light = |p: &Probe| p.local.mu0.max(0.0) * p.local.mu.max(0.0);
+    if light(first) > 0.0 {
+        return first;
+    }
+    others
+        .iter()
+        .max_by(|a, b| light(a).total_cmp(&light(b)))
+        .unwrap_or(first)
+}
+
 /// The table read at node position `x` in `[0, TABLE - 1]` by the parabola through the
 /// nearest node and its two neighbours. Linear interpolation between nodes, which put the chord
-/// of Hapke's ratio (convex in `w`) above it, left a bias of +1e-3 on the textured Moon at
-/// 70,000 km (`tests/maps.rs`); the parabola's error is of the third order in the spacing.
+/// of Hapke's ratio (convex in `w`) above it, left the tabulated pixels 1.6e-3 too bright on
+/// the textured Moon at 71,000 km (`docs/performance.md`); the parabola's error is of the
+/// third order in the spacing.
 #[inline(always)]
 fn quadratic(table: &[f64; TABLE], x: f64) -> f64 {
     let k = (x.round() as usize).clamp(1, TABLE - 2);

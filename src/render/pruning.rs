@@ -1,7 +1,9 @@
 //! Pruning of inactive quadrangles (Sec. 4.5): FOV (Eqs. 26-27), observability (Eqs. 28-29)
 //! and illumination (Eqs. 30-31).
 //!
-//! The conditions are tested at the midpoint and at the four corners, with each point's own
+//! The FOV is tested at the midpoint, then, where that fails, over the box of the corners
+//! (a quadrangle can straddle the frame's edge with its midpoint outside). The other
+//! conditions are tested at the midpoint and at the four corners, with each point's own
 //! directions to the camera and the Sun (finite distances). A quadrangle is kept when some
 //! point is visible and some point is lit; it is marked as a *boundary* quadrangle (it
 //! straddles the limb or the terminator) when any point fails either test, so the integration
@@ -20,7 +22,7 @@ pub const BOUNDARY: u8 = 2;
 #[inline(always)]
 pub fn classify(view: &View, mid: DVec3, corners: [DVec3; 4]) -> u8 {
     let (p_mid, _) = view.surface(mid);
-    if !view.in_fov(view.to_camera(p_mid)) {
+    if !view.in_fov(view.to_camera(p_mid)) && !view.corners_reach_fov(corners) {
         return PRUNED;
     }
     let (mut vis_any, mut lit_any, mut vis_all, mut lit_all) = (false, false, true, true);

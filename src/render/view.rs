@@ -396,6 +396,35 @@ impl<'a> View<'a> {
         Some([u * self.m, v * self.m])
     }
 
+    /// FOV test (Eqs. 26-27) of a quadrangle whose midpoint failed [`View::in_fov`]: whether
+    /// its corners (CSF unit directions) reach into the field all the same. For the frustum,
+    /// whether the box around the corners that project overlaps the frame grown by the
+    /// margin; for the cone, whether a corner is inside it. A quadrangle larger than the
+    /// margin can straddle the frame's edge with its midpoint outside: pruning it by its
+    /// midpoint alone lost 3.3e-4 of the light at 1/16 per pixel on the Artemis I close
+    /// approach, where the Moon overfills the frame (all of it in the first 3 columns).
+    pub fn corners_reach_fov(&self, corners: [DVec3; 4]) -> bool {
+        let cam = corners.map(|d| self.to_camera(self.surface(d).0));
+        match self.fov {
+            FovShape::Cone => cam.iter().any(|&p| self.in_fov(p)),
+            FovShape::Frustum => {
+                let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+                for [u, v] in cam.iter().filter_map(|&p| self.pixel(p)) {
+                    lo = [lo[0].min(u), lo[1].min(v)];
+                    hi = [hi[0].max(u), hi[1].max(v)];
+                }
+                let (w, h) = (
+                    self.intrinsics.width_px as f64 * self.m,
+                    self.intrinsics.height_px as f64 * self.m,
+                );
+                hi[0] >= -self.margin_px
+                    && hi[1] >= -self.margin_px
+                    && lo[0] <= w + self.margin_px
+                    && lo[1] <= h + self.margin_px
+            }
+        }
+    }
+
     /// FOV test (Eqs. 26-27) of a camera-frame point.
     #[inline(always)]
     pub fn in_fov(&self, p_cam: DVec3) -> bool {

@@ -309,6 +309,12 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     (g, area * cos_eps / (ds2 * dc2))
 }
 
+/// The largest relative change of a quadrangle's cosines (to the Sun and to the camera) across
+/// one cell of its sub-grid.
+const GRAZING_STEP: f64 = 0.05;
+/// The most nodes per side that grazing adds.
+const GRAZING_MAX_POINTS: usize = 16;
+
 /// The trapezoidal or midpoint rule over quadrangle `(i, k)` with clamped cosines, on a
 /// sub-grid of `points_per_deg` per degree, capped by `px_cap`, at least `min_points` per side;
 /// adds its surface samples to `samples`.
@@ -338,7 +344,36 @@ fn sub_grid(
         (n.ceil() as usize + extra).clamp(min_points, 64)
     };
     let lat_mid = 0.5 * (l0 + l1);
-    let (nu, nv) = (count(p1 - p0, lat_mid.cos()), count(l1 - l0, 1.0));
+    let (mut nu, mut nv) = (count(p1 - p0, lat_mid.cos()), count(l1 - l0, 1.0));
+    // Where the Sun or the camera grazes the quadrangle, its cosines change across it by
+    // more than a few percent of themselves (by about its angular side over the cosine) and
+    // the integrand's curvature biases a rule with few nodes: the Artemis I pass 263 km above
+    // the Moon at 118 deg of phase, whose lit strip is seen near the horizon, summed 4.4e-3
+    // too much light at 1 quadrangle per pixel with one node each. There the nodes are set
+    // so that each cell's cosines change by at most GRAZING_STEP of themselves.
+    let (mid, mid_geo) = sample(view, trig.mid_dir(i, k));
+    let low = mid.mu0.min(mid.mu);
+    if low > 0.0 {
+        let need = |side_rad: f64| {
+            ((side_rad / (GRAZING_STEP * low)).ceil() as usize + extra).min(GRAZING_MAX_POINTS)
+        };
+        nu = nu.max(need((p1 - p0) * lat_mid.cos()));
+        nv = nv.max(need(l1 - l0));
+    }
+    if rule == Rule::Midpoint && nu == 1 && nv == 1 {
+        // One node: the midpoint already sampled.
+        *samples += 1;
+        if mid.mu0 > 0.0 && mid.mu > 0.0 && mid_geo > 0.0 {
+            return brdf.eval(&mid)
+                * mid.mu0
+                * mid.mu
+                * lat_mid.cos()
+                * mid_geo
+                * (p1 - p0)
+                * (l1 - l0);
+        }
+        return 0.0;
+    }
     // Node `a` of `n` across `[lo, hi]` and its weight in units of the spacing.
     let node = |lo: f64, hi: f64, a: usize, n: usize| match rule {
         Rule::Trapezoid => {

@@ -142,10 +142,17 @@ pub fn plan(view: &View, bounds: &Bounds, settings: &Settings) -> Result<Plan, T
             kept += 1;
             let dist =
                 |p: [f64; 2], q: [f64; 2]| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt();
-            area +=
+            let (l_lon, l_lat) = (
+                0.5 * (dist(a, b) + dist(d, c)),
+                0.5 * (dist(a, d) + dist(b, c)),
+            );
+            // A sliver (a thin crescent's quadrangle, foreshortened at the limb) covers less
+            // than a pixel across but touches a pixel per pixel of its length.
+            let quad_area =
                 0.5 * ((a[0] - c[0]) * (b[1] - d[1]) - (b[0] - d[0]) * (a[1] - c[1])).abs() / px2;
-            len_lon += 0.5 * (dist(a, b) + dist(d, c));
-            len_lat += 0.5 * (dist(a, d) + dist(b, c));
+            area += quad_area.max(l_lon.max(l_lat) / view.m);
+            len_lon += l_lon;
+            len_lat += l_lat;
         }
     }
     // Only part of the image: the covered area cannot exceed the frame.

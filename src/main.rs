@@ -131,9 +131,11 @@ enum Command {
         #[arg(long, default_value_t = 8)]
         max_depth: u32,
     },
-    /// Fits the fidelity planner's error model on a sweep's ladder rows (its sweep.csv).
+    /// Fits the fidelity planner's error model on the ladder rows of one or more sweep CSVs.
     FitModel {
-        csv: PathBuf,
+        /// One or more sweep CSVs (their ladder rows are fitted together).
+        #[arg(required = true)]
+        csv: Vec<PathBuf>,
         #[arg(long, default_value = "config/error_model.toml")]
         out: PathBuf,
     },
@@ -465,9 +467,10 @@ fn run() -> anyhow::Result<()> {
         }
         Command::FitModel { csv, out } => {
             let m = app::sweep::fit_csv(&csv)?;
+            let names: Vec<String> = csv.iter().map(|c| c.display().to_string()).collect();
             let how = format!(
                 "optistim fit-model {} --out {}",
-                csv.display(),
+                names.join(" "),
                 out.display()
             );
             std::fs::write(&out, app::sweep::model_text(&m, &how))

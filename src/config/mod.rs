@@ -81,7 +81,12 @@ impl Config {
     /// The frame planner of `fidelity = "budget"` (`None` for fixed settings).
     pub fn planner(&self) -> Option<crate::fidelity::budget::Planner> {
         self.fidelity.as_ref().map(|f| {
-            crate::fidelity::budget::Planner::new(&self.scene, &self.settings, f.budget, f.model)
+            crate::fidelity::budget::Planner::new(
+                &self.scene,
+                &self.settings,
+                f.budget,
+                f.model.clone(),
+            )
         })
     }
 }

@@ -133,6 +133,9 @@ pub struct Row {
     pub f_footprint_texels: f64,
     pub f_texture: f64,
     pub f_shadow_share: f64,
+    /// 0 in the CSVs written before the feature existed, whose bodies are all Lambertian.
+    #[serde(default)]
+    pub f_nonlinear_albedo: f64,
 }
 
 impl Row {
@@ -147,17 +150,21 @@ impl Row {
             footprint_texels: self.f_footprint_texels,
             texture: self.f_texture,
             shadow_share: self.f_shadow_share,
+            nonlinear_albedo: self.f_nonlinear_albedo,
         }
     }
 }
 
-/// Fits the planner's error model on the ladder rows of a `sweep.csv`.
-pub fn fit_csv(csv_path: &Path) -> Result<ErrorModel, AppError> {
-    let mut r = csv::Reader::from_path(csv_path).map_err(|e| bad(csv_path, e))?;
-    let rows: Vec<Row> = r
-        .deserialize()
-        .collect::<Result<_, _>>()
-        .map_err(|e| bad(csv_path, e))?;
+/// Fits the planner's error model on the ladder rows of one or more `sweep.csv` files.
+pub fn fit_csv(csv_paths: &[impl AsRef<Path>]) -> Result<ErrorModel, AppError> {
+    let mut rows: Vec<Row> = Vec::new();
+    for csv_path in csv_paths {
+        let csv_path = csv_path.as_ref();
+        let mut r = csv::Reader::from_path(csv_path).map_err(|e| bad(csv_path, e))?;
+        for row in r.deserialize() {
+            rows.push(row.map_err(|e| bad(csv_path, e))?);
+        }
+    }
     fit(&rows)
 }
 
@@ -166,7 +173,13 @@ pub fn model_text(m: &ErrorModel, how: &str) -> String {
     format!(
         "# The fidelity planner's error model (src/fidelity/budget.rs), fitted by\n\
          #   {how}\n\
-         # on {} ladder frames: ln e = ln margin + k . (1, ln p, ln(texture + 1e-4), ln(edge_share + 1e-3), ln p ln(texture + 1e-4)).\n\n{}",
+         # on {} ladder frames. Each figure is e = margin * sum over its terms of exp(k . x), x one of\n\
+         #   linear: (1, ln p, ln(T + 1e-4), ln(E + 1e-3), ln p ln(T + 1e-4))\n\
+         #   edge:   (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(phase / 2) + 0.05))\n\
+         #   inside: (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))\n\
+         #   reflectance: (1, ln p, ln(H + 1e-6))\n\
+         # (p quadrangles per pixel, T the texture, E the share of lit pixels on the limb or terminator,\n\
+         # H 1 where the albedo enters the reflectance non-linearly, as Hapke's w).\n\n{}",
         m.frames,
         m.to_toml()
     )
@@ -501,6 +514,7 @@ pub fn run(
                 f_footprint_texels: features.footprint_texels,
                 f_texture: features.texture,
                 f_shadow_share: features.shadow_share,
+                f_nonlinear_albedo: features.nonlinear_albedo,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,

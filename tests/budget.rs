@@ -125,3 +125,41 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
         assert!(header.contains(key), "{key} missing");
     }
 }
+
+/// A figure that no rung is predicted to meet does not send the frame to the top rung: the
+/// planner takes the cheapest rung that meets the other figures and comes within 1.5x of the
+/// ladder's best prediction on that one, and says the budget is not met.
+#[test]
+fn a_figure_no_rung_can_meet_does_not_hold_back_the_others() {
+    use optistim::fidelity::budget::{Budget, ErrorModel, Planner};
+    let cfg = optistim::config::parse(&spec("").toml(), "t").unwrap();
+    // Each figure one inside term: exp(k0 + k1 ln p) with T = 0 (k2 = k3 = 0).
+    let model = |median: (f64, f64), p99: (f64, f64)| {
+        let figure = |name: &str, (c, slope): (f64, f64)| {
+            format!(
+                "[{name}]\nmargin = 1.0\n[[{name}.term]]\nx = \"inside\"\nk = [{}, {slope}, 0.0, 0.0]\n",
+                f64::ln(c)
+            )
+        };
+        let text = format!(
+            "frames = 1\n{}{}{}",
+            figure("median", median),
+            figure("p99", p99),
+            figure("total", (1e-6, 0.0))
+        );
+        ErrorModel::parse(&text, "test").unwrap()
+    };
+    let budget = Budget::default();
+    let plan = |m| Planner::new(&cfg.scene, &cfg.settings, budget, m).plan(&cfg.scene, &cfg.pose);
+    // The median flat at 2e-3 (budget 1e-3) at every rung, the p99 0.1 / p (budget 3e-2):
+    // the cheapest rung meeting the p99 is 4.
+    let p = plan(model((2e-3, 0.0), (0.1, -1.0)));
+    assert_eq!((p.points_per_pixel, p.meets_budget), (4.0, false), "{p:?}");
+    // The p99 1 / p meets its budget on no rung (1/16 at the top): the first rung within
+    // 1.5x of that is the top.
+    let p = plan(model((2e-4, 0.0), (1.0, -1.0)));
+    assert_eq!((p.points_per_pixel, p.meets_budget), (16.0, false), "{p:?}");
+    // Both met: the cheapest rung that meets them.
+    let p = plan(model((2e-4, 0.0), (0.01, -1.0)));
+    assert_eq!((p.points_per_pixel, p.meets_budget), (0.5, true), "{p:?}");
+}

@@ -9,23 +9,23 @@
 //!
 //! ```text
 //! e(p) = margin * sum_t exp(k_t . x_t)
-//! edge:   x = (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(g / 2) + 0.05))
-//! inside: x = (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))
-//! linear: x = (1, ln p, ln(T + 1e-4), ln(E + 1e-3), ln p ln(T + 1e-4))
+//! edge:        x = (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(g / 2) + 0.05))
+//! inside:      x = (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))
+//! reflectance: x = (1, ln p, ln(H + 1e-6))
 //! ```
 //!
 //! with `p` the quadrangles per pixel, `T` the texture (the relative change of albedo and of
 //! the DEM's shading between neighbouring pixels), `E` the share of lit pixels on the limb or
-//! the terminator and `g` the phase. The per-pixel figures are an edge term plus an inside
-//! term: the limb's and terminator's pixels fall steeply with `p` and dominate the 99th
-//! percentile once they are more than 1 % of the lit pixels, then the inside's floor remains
-//! (the map read over each pixel's footprint leaves a textured frame an error that more
-//! quadrangles do not reduce, while a plain body's falls with `p`). One term, fitted
-//! linearly, read the steep edge and the flat floor as one slope and needed a margin of 37
-//! on the p99; the sum needs 4. The total is one linear term. The terms are fitted by least
-//! squares in logarithms (Levenberg-Marquardt, `fit_terms`), and `margin` is the largest
-//! ratio of measured to modelled error over the sweep's frames, so that the model is an
-//! upper bound on every frame it was fitted on.
+//! the terminator, `g` the phase and `H` 1 where the albedo enters the reflectance
+//! non-linearly ([`Features::nonlinear_albedo`]). The limb's and terminator's pixels fall
+//! steeply with `p` and dominate the 99th percentile once they are more than 1 % of the lit
+//! pixels; then the inside's floor remains (the map read over each pixel's footprint leaves a
+//! textured frame an error that more quadrangles do not reduce, while a plain body's falls
+//! with `p`), and Hapke's ratio adds its own. One linear term read the steep edge and the
+//! flat floor as one slope and needed a margin of 37 on the p99; the sum needs 4.5. The terms
+//! are fitted by least squares in logarithms (Levenberg-Marquardt, `fit_terms`), and `margin`
+//! is the largest ratio of measured to modelled error over the sweep's frames, so that the
+//! model is an upper bound on every frame it was fitted on.
 //!
 //! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
@@ -103,8 +103,6 @@ impl Features {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Regressors {
-    /// `(1, ln p, ln(T + 1e-4), ln(E + 1e-3), ln p ln(T + 1e-4))`: the whole frame at once.
-    Linear,
     /// `(1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(g / 2) + 0.05))`: the limb's and the
     /// terminator's pixels, which a per-pixel figure sees once they are more than 1 % of the
     /// lit ones, and whose error grows with the terminator's share (the phase `g`).
@@ -121,7 +119,6 @@ impl Regressors {
     fn values(self, points_per_px: f64, f: &Features) -> Vec<f64> {
         let (p, t) = (points_per_px.ln(), (f.texture + 1e-4).ln());
         match self {
-            Regressors::Linear => vec![1.0, p, t, (f.edge_share() + 1e-3).ln(), p * t],
             Regressors::Edge => vec![
                 1.0,
                 p,
@@ -348,15 +345,6 @@ fn fit_terms(x: &[Vec<Vec<f64>>], y: &[f64]) -> Option<Vec<Vec<f64>>> {
         return Some(alone);
     }
     let flat = |k: &[Vec<f64>]| k.concat();
-    let split = |v: &[f64]| {
-        let mut out = Vec::new();
-        let mut at = 0;
-        for &n in &sizes {
-            out.push(v[at..at + n].to_vec());
-            at += n;
-        }
-        out
-    };
     let mut starts: Vec<Vec<f64>> = Vec::new();
     for shift in [0.0, 1.0, 3.0] {
         for lead in 0..sizes.len() {
@@ -390,12 +378,23 @@ fn fit_terms(x: &[Vec<Vec<f64>>], y: &[f64]) -> Option<Vec<Vec<f64>>> {
     let mut best: Option<(f64, Vec<f64>)> = None;
     for start in starts {
         let k = levenberg_marquardt(x, y, start, &sizes);
-        let cost = cost(x, y, &split(&k));
+        let cost = cost(x, y, &split(&k, &sizes));
         if cost.is_finite() && best.as_ref().is_none_or(|(c, _)| cost < *c) {
             best = Some((cost, k));
         }
     }
-    best.map(|(_, k)| split(&k))
+    best.map(|(_, k)| split(&k, &sizes))
+}
+
+/// The flat parameter vector `v` cut into the terms' `sizes`.
+fn split(v: &[f64], sizes: &[usize]) -> Vec<Vec<f64>> {
+    let mut out = Vec::with_capacity(sizes.len());
+    let mut at = 0;
+    for &n in sizes {
+        out.push(v[at..at + n].to_vec());
+        at += n;
+    }
+    out
 }
 
 /// The sum of squared residuals in logarithms.
@@ -416,15 +415,7 @@ fn levenberg_marquardt(
     sizes: &[usize],
 ) -> Vec<f64> {
     let n = k.len();
-    let split = |v: &[f64]| {
-        let mut out = Vec::new();
-        let mut at = 0;
-        for &s in sizes {
-            out.push(v[at..at + s].to_vec());
-            at += s;
-        }
-        out
-    };
+    let split = |v: &[f64]| split(v, sizes);
     let mut lambda = 1e-3;
     let mut c = cost(x, y, &split(&k));
     for _ in 0..2000 {

@@ -174,7 +174,6 @@ pub fn model_text(m: &ErrorModel, how: &str) -> String {
         "# The fidelity planner's error model (src/fidelity/budget.rs), fitted by\n\
          #   {how}\n\
          # on {} ladder frames. Each figure is e = margin * sum over its terms of exp(k . x), x one of\n\
-         #   linear: (1, ln p, ln(T + 1e-4), ln(E + 1e-3), ln p ln(T + 1e-4))\n\
          #   edge:   (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(phase / 2) + 0.05))\n\
          #   inside: (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))\n\
          #   reflectance: (1, ln p, ln(H + 1e-6))\n\

@@ -413,16 +413,23 @@ impl<'a> View<'a> {
                     lo = [lo[0].min(u), lo[1].min(v)];
                     hi = [hi[0].max(u), hi[1].max(v)];
                 }
-                let (w, h) = (
-                    self.intrinsics.width_px as f64 * self.m,
-                    self.intrinsics.height_px as f64 * self.m,
-                );
-                hi[0] >= -self.margin_px
-                    && hi[1] >= -self.margin_px
-                    && lo[0] <= w + self.margin_px
-                    && lo[1] <= h + self.margin_px
+                self.box_meets_frame(lo, hi)
             }
         }
+    }
+
+    /// Whether the box `lo..hi` of fine-grid pixel coordinates meets the frame grown by the
+    /// margin.
+    #[inline(always)]
+    fn box_meets_frame(&self, lo: [f64; 2], hi: [f64; 2]) -> bool {
+        let (w, h) = (
+            self.intrinsics.width_px as f64 * self.m,
+            self.intrinsics.height_px as f64 * self.m,
+        );
+        hi[0] >= -self.margin_px
+            && hi[1] >= -self.margin_px
+            && lo[0] <= w + self.margin_px
+            && lo[1] <= h + self.margin_px
     }
 
     /// FOV test (Eqs. 26-27) of a camera-frame point.
@@ -430,19 +437,9 @@ impl<'a> View<'a> {
     pub fn in_fov(&self, p_cam: DVec3) -> bool {
         match self.fov {
             FovShape::Cone => p_cam.z >= self.cone_cos * p_cam.length(),
-            FovShape::Frustum => match self.pixel(p_cam) {
-                Some([u, v]) => {
-                    let (w, h) = (
-                        self.intrinsics.width_px as f64 * self.m,
-                        self.intrinsics.height_px as f64 * self.m,
-                    );
-                    u >= -self.margin_px
-                        && v >= -self.margin_px
-                        && u <= w + self.margin_px
-                        && v <= h + self.margin_px
-                }
-                None => false,
-            },
+            FovShape::Frustum => self
+                .pixel(p_cam)
+                .is_some_and(|uv| self.box_meets_frame(uv, uv)),
         }
     }
 }

@@ -130,6 +130,22 @@ impl Regressors {
         }
     }
 
+    /// Every kind with its regressors as written in the model file's header.
+    pub const ALL: [(Regressors, &'static str); 3] = [
+        (
+            Regressors::Edge,
+            "edge:   (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(phase / 2) + 0.05))",
+        ),
+        (
+            Regressors::Inside,
+            "inside: (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))",
+        ),
+        (
+            Regressors::Reflectance,
+            "reflectance: (1, ln p, ln(H + 1e-6))",
+        ),
+    ];
+
     fn len(self) -> usize {
         self.values(1.0, &Features::default()).len()
     }

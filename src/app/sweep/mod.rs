@@ -170,13 +170,15 @@ pub fn fit_csv(csv_paths: &[impl AsRef<Path>]) -> Result<ErrorModel, AppError> {
 
 /// The model file's text: a header saying how it was made, then the model.
 pub fn model_text(m: &ErrorModel, how: &str) -> String {
+    let kinds: String = crate::fidelity::budget::Regressors::ALL
+        .iter()
+        .map(|(_, formula)| format!("#   {formula}\n"))
+        .collect();
     format!(
         "# The fidelity planner's error model (src/fidelity/budget.rs), fitted by\n\
          #   {how}\n\
          # on {} ladder frames. Each figure is e = margin * sum over its terms of exp(k . x), x one of\n\
-         #   edge:   (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(phase / 2) + 0.05))\n\
-         #   inside: (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))\n\
-         #   reflectance: (1, ln p, ln(H + 1e-6))\n\
+         {kinds}\
          # (p quadrangles per pixel, T the texture, E the share of lit pixels on the limb or terminator,\n\
          # H 1 where the albedo enters the reflectance non-linearly, as Hapke's w).\n\n{}",
         m.frames,

@@ -271,7 +271,7 @@ fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
 /// The grid seen from the Sun casts the same shadows as the BVH, from points all over
 /// Itokawa and Bennu, for Suns all around them.
 #[test]
-fn the_sun_grid_casts_the_shadows_the_bvh_casts() {
+fn the_sun_grid_casts_the_shadows_the_bvh_casts_and_knows_the_facets_lit_all_over() {
     for (name, d) in [("itokawa_8.obj", 1300.0), ("bennu_12k.obj", 1000.0)] {
         let cfg = shape_scene(
             &SceneSpec {
@@ -283,7 +283,7 @@ fn the_sun_grid_casts_the_shadows_the_bvh_casts() {
         let Shape::Mesh(mesh) = &cfg.scene.body.shape else {
             unreachable!()
         };
-        let (mut lit, mut shadowed) = (0, 0);
+        let (mut lit, mut shadowed, mut clear, mut facing) = (0, 0, 0, 0);
         for k in 0..12 {
             let a = k as f64 * 0.55;
             let s = DVec3::new(a.cos(), a.sin() * 0.8, 0.6 * (a * 1.7).sin()).normalize();
@@ -303,10 +303,30 @@ fn the_sun_grid_casts_the_shadows_the_bvh_casts() {
                     assert_eq!(got, want, "{name} facet {f}, Sun {k}");
                     (lit, shadowed) = (lit + !want as usize, shadowed + want as usize);
                 }
+                // A facet the grid calls clear is lit all over, to its corners and edges.
+                if grid.clear(f as u32) {
+                    clear += 1;
+                    for w in [
+                        [0.998, 0.001, 0.001],
+                        [0.001, 0.998, 0.001],
+                        [0.001, 0.001, 0.998],
+                        [0.4995, 0.4995, 0.001],
+                        [0.001, 0.4995, 0.4995],
+                        [0.4995, 0.001, 0.4995],
+                        [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0],
+                    ] {
+                        let p = v[0] * w[0] + v[1] * w[1] + v[2] * w[2];
+                        let dir = (s * AU - p).normalize();
+                        assert!(!mesh.shadows(p, n, dir), "{name} clear facet {f}, Sun {k}");
+                    }
+                }
+                facing += 1;
             }
         }
-        eprintln!("{name}: {lit} lit, {shadowed} shadowed");
+        eprintln!("{name}: {lit} lit, {shadowed} shadowed; {clear} of {facing} facets clear");
         assert!(shadowed > 100 && lit > 1000);
+        // Most sun-facing facets need no shadow ray.
+        assert!(clear * 10 > facing * 7, "{clear} of {facing}");
     }
 }
 

@@ -319,7 +319,7 @@ impl<'a> Tracer<'a> {
             }
             _ => 0.0,
         };
-        if g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s) {
+        if g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s, facet) {
             return hit(scattered);
         }
         let f_r = match &body.albedo_map {
@@ -339,7 +339,7 @@ impl<'a> Tracer<'a> {
     /// inversion ([`crate::inversion`]) fits the BRDF on.
     pub fn photometry(&self, u: f64, v: f64) -> Option<(f64, f64, f64, f64)> {
         let (dir, cos_eps, solid) = self.line_of_sight(u, v);
-        let (t, shape_normal, _, which) = self.nearest(dir)?;
+        let (t, shape_normal, facet, which) = self.nearest(dir)?;
         if which != 0 {
             return None;
         }
@@ -354,7 +354,7 @@ impl<'a> Tracer<'a> {
         let d_sun2 = to_sun.length_squared();
         let s = to_sun / d_sun2.sqrt();
         let g = Local::new(normal, s, -dir);
-        if g.mu <= 0.0 || g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s) {
+        if g.mu <= 0.0 || g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s, facet) {
             return None;
         }
         Some((
@@ -368,18 +368,20 @@ impl<'a> Tracer<'a> {
     /// Whether the first body's surface point `p` (B; `up` its unit direction from the
     /// centre, `normal` the normal the BRDF sees) sees the Sun's centre in the unit direction
     /// `s`: no DEM relief ([`Terrain`]), no facet of its own mesh (SLIM Sec. 6.1: a ray from
-    /// the facet to the Sun) and no other body ([`Tracer::eclipsed`]) in the way.
+    /// the facet to the Sun, not cast from a facet the Sun's grid knows to be lit all over)
+    /// and no other body ([`Tracer::eclipsed`]) in the way. `facet`: the mesh's facet at `p`.
     #[inline]
-    fn sees_sun(&self, p: DVec3, up: DVec3, normal: DVec3, s: DVec3) -> bool {
+    fn sees_sun(&self, p: DVec3, up: DVec3, normal: DVec3, s: DVec3, facet: Option<u32>) -> bool {
         if let Some(terrain) = &self.terrain
             && terrain.shadowed(up, s, self.displaced)
         {
             return false;
         }
         if let Shape::Mesh(m) = &self.scene.body.shape {
-            let shadowed = match &self.sun_grid {
-                Some(g) => g.occluded(m.shadow_origin(p, normal, s), s),
-                None => m.shadows(p, normal, s),
+            let shadowed = match (&self.sun_grid, facet) {
+                (Some(g), Some(f)) if g.clear(f) => false,
+                (Some(g), _) => g.occluded(m.shadow_origin(p, normal, s), s),
+                (None, _) => m.shadows(p, normal, s),
             };
             if shadowed {
                 return false;

@@ -1,0 +1,214 @@
+"""Optistim against Mitsuba 3 on Bennu's mesh (issue 16's peer comparison).
+
+The scene is `bennu_lambert.toml` beside this script: Bennu's 12,288-facet shape model seen
+from 1 km at 41 deg of phase, 1024 x 1024, a Lambert surface (Mitsuba has no Hapke that
+matches ours term by term), direct sunlight with the shadows the body casts on itself.
+Mitsuba 3 (the `mitsuba` wheel, variant `llvm_ad_rgb`) renders the same mesh, camera and Sun
+with its `direct` integrator (one emitter sample, no BSDF sample: the Sun is a directional
+emitter) and a box pixel filter, so each pixel is its footprint's mean radiance, what
+optistim integrates. Both are compared with optistim's converged reference
+(`optistim render --reference`), with the error figures of `src/fidelity/metrics.rs`
+(relative error per lit pixel: median, p99; and the total).
+
+Units: optistim's reference is power per pixel [W], Mitsuba's radiance per unit irradiance.
+A pinhole pixel's power is `L A p^2 cos^4(eps) / f^2`, so the reference is divided by
+`cos^4(eps)` at each pixel's centre and one constant scales Mitsuba to it: the ratio of the
+totals of Mitsuba's deepest render (`--scale-spp`), which is not among the compared ones.
+
+Timing, interleaved: each round renders every Mitsuba sample count once (after one warm-up
+render per count, which compiles and caches its kernels) and runs `optistim bench` on the
+same scene; medians over the rounds. Both on all cores (`--threads`).
+
+    python python/benches/mitsuba_bennu.py --optistim target/release/optistim \
+        --reference out/bennu_ref/power.fits --rounds 3
+"""
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+
+import numpy as np
+from astropy.io import fits
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def read_fits_top_down(path):
+    with fits.open(path) as f:
+        h = f[0].header
+        data = np.asarray(f[0].data, dtype=np.float64)
+    if data.ndim == 3:
+        data = data.sum(axis=0)
+    if h.get("ROWORDER", "BOTTOM_UP").strip() == "BOTTOM_UP":
+        data = data[::-1, :]
+    return data
+
+
+def errors(image, reference):
+    """The figures of src/fidelity/metrics.rs: total, and median / p99 over lit pixels."""
+    total = abs(image.sum() / reference.sum() - 1.0)
+    positive = reference[reference > 0]
+    lit = 0.01 * np.quantile(positive, 0.99)
+    m = reference >= lit
+    rel = np.abs(image[m] / reference[m] - 1.0)
+    return {
+        "total": float(total),
+        "median": float(np.median(rel)),
+        "p99": float(np.quantile(rel, 0.99)),
+        "lit_px": int(m.sum()),
+    }
+
+
+def mitsuba_scene(mi, scene, scene_dir, spp):
+    cam = scene["camera"]
+    w, h = cam["resolution_px"]
+    pitch = cam["pixel_pitch_m"]
+    f = cam["focal_length_m"]
+    fov_x = math.degrees(2.0 * math.atan(0.5 * w * pitch / f))
+    eye = scene["pose"]["camera_position_m"]
+    sun = np.array(scene["sun"]["position_m"], dtype=float)
+    sun_dir = sun / np.linalg.norm(sun)
+    mesh = scene["body"]["mesh"]
+    scale = {"km": 1000.0, "m": 1.0}[mesh.get("units", "m")]
+    albedo = scene["body"]["albedo"]
+    T = mi.ScalarTransform4f
+    return mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {
+                "type": "direct",
+                "emitter_samples": 1,
+                "bsdf_samples": 0,
+                "hide_emitters": True,
+            },
+            "sensor": {
+                "type": "perspective",
+                "fov": fov_x,
+                "fov_axis": "x",
+                # optistim's look_at_body keeps the body's +Z up in the image
+                # (src/config/mod.rs: look_at with -Z as image down).
+                "to_world": T().look_at(origin=eye, target=[0, 0, 0], up=[0, 0, 1]),
+                "film": {
+                    "type": "hdrfilm",
+                    "width": w,
+                    "height": h,
+                    "rfilter": {"type": "box"},
+                    "pixel_format": "rgb",
+                },
+                "sampler": {"type": "multijitter", "sample_count": spp},
+            },
+            "sun": {
+                "type": "directional",
+                "direction": (-sun_dir).tolist(),
+                "irradiance": {"type": "rgb", "value": 1.0},
+            },
+            "body": {
+                "type": "obj",
+                "filename": os.path.normpath(os.path.join(scene_dir, mesh["path"])),
+                "face_normals": True,
+                "to_world": T().scale(scale),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo}},
+            },
+        }
+    )
+
+
+def render_mitsuba(mi, dr, scene):
+    t0 = time.perf_counter()
+    img = mi.render(scene)
+    dr.eval(img)
+    arr = np.array(img, dtype=np.float64)[:, :, 0]
+    return arr, (time.perf_counter() - t0) * 1e3
+
+
+def bench_optistim(exe, scene_path, frames, threads):
+    with tempfile.TemporaryDirectory() as d:
+        per = os.path.join(d, "frames.jsonl")
+        subprocess.run(
+            [exe, "bench", "--scene", scene_path, "--frames", str(frames),
+             "--threads", str(threads), "--per-frame", per],
+            check=True, capture_output=True,
+        )
+        rows = [json.loads(line) for line in open(per)]
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default=os.path.join(HERE, "bennu_lambert.toml"))
+    ap.add_argument("--optistim", default="target/release/optistim")
+    ap.add_argument("--reference", required=True, help="power.fits of optistim render --reference")
+    ap.add_argument("--spp", default="1,2,4,8,16,32,64,128,256")
+    ap.add_argument("--scale-spp", type=int, default=1024)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--frames", type=int, default=10, help="optistim bench frames per round")
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--out", default=None, help="write the results as JSON here")
+    args = ap.parse_args()
+
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_rgb")
+    if args.threads:
+        dr.set_thread_count(args.threads)
+
+    scene = tomllib.load(open(args.scene, "rb"))
+    scene_dir = os.path.dirname(os.path.abspath(args.scene))
+    cam = scene["camera"]
+    w, h = cam["resolution_px"]
+    pitch, f = cam["pixel_pitch_m"], cam["focal_length_m"]
+    x = (np.arange(w) + 0.5 - 0.5 * w) * pitch
+    y = (np.arange(h) + 0.5 - 0.5 * h) * pitch
+    cos_eps = f / np.sqrt(f * f + x[None, :] ** 2 + y[:, None] ** 2)
+    reference = read_fits_top_down(args.reference) / cos_eps**4
+
+    spps = [int(s) for s in args.spp.split(",")]
+    scenes = {s: mitsuba_scene(mi, scene, scene_dir, s) for s in spps + [args.scale_spp]}
+    deep, _ = render_mitsuba(mi, dr, scenes[args.scale_spp])
+    k = reference.sum() / deep.sum()
+    print(f"scale from {args.scale_spp} spp: {k:.6e}; its own figures:",
+          errors(k * deep, reference), file=sys.stderr)
+
+    images, times = {}, {s: [] for s in spps}
+    ours_frame, ours_render = [], []
+    for s in spps:
+        images[s], _ = render_mitsuba(mi, dr, scenes[s])  # warm-up: kernels compiled here
+    for r in range(args.rounds):
+        for s in spps:
+            _, ms = render_mitsuba(mi, dr, scenes[s])
+            times[s].append(ms)
+        rows = bench_optistim(args.optistim, args.scene, args.frames, args.threads)
+        ours_frame += [row["ms"] for row in rows]
+        ours_render += [row["timings_ms"]["total"] for row in rows]
+        print(f"round {r + 1}: optistim frame median {statistics.median(ours_frame):.1f} ms",
+              file=sys.stderr)
+
+    results = {"mitsuba": [], "optistim": {}}
+    for s in spps:
+        e = errors(k * images[s], reference)
+        e.update(spp=s, ms=statistics.median(times[s]))
+        results["mitsuba"].append(e)
+    with tempfile.TemporaryDirectory() as d:
+        subprocess.run([args.optistim, "render", args.scene, "--out", d],
+                       check=True, capture_output=True)
+        ours = read_fits_top_down(os.path.join(d, "power.fits"))
+    results["optistim"] = errors(ours, read_fits_top_down(args.reference))
+    results["optistim"].update(
+        frame_ms=statistics.median(ours_frame),
+        render_ms=statistics.median(ours_render),
+    )
+    print(json.dumps(results, indent=1))
+    if args.out:
+        json.dump(results, open(args.out, "w"), indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -6,7 +6,9 @@
 //!
 //! The forward model is the renderer's own: each used pixel is an `n x n` grid of lines of
 //! sight ([`crate::raycast::Tracer::photometry`]: `mu0`, `mu`, `cos g` and the `(P/L)` per
-//! unit of `f_r`), the geometry cast once, so that a trial set of parameters costs only the
+//! unit of `f_r`), or, for a lone mesh through a pinhole, the line of sight through each of
+//! its facets' fragments' centroids weighted by the fragment's area (as
+//! [`crate::raycast::sampled`] renders it), the geometry cast once, so that a trial set of parameters costs only the
 //! BRDF's evaluations. A pixel is used when all its lines of sight and its eight neighbours'
 //! meet the body in direct sunlight (limb, terminator and shadow edges are left out, where
 //! the image depends on sub-pixel geometry) and it is not saturated.
@@ -22,6 +24,7 @@
 
 use crate::brdf::{Hapke, HapkeParams};
 use crate::raycast::Tracer;
+use crate::raycast::raster::COVERED;
 use crate::scene::{Pose, Scene};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -121,10 +124,25 @@ fn gather(images: &[Image], n: u32) -> Result<Data, InversionError> {
         let e_per_pl = im.scene.signal_factor() * det.exposure_s;
         let step = 1.0 / n as f64;
         // Every pixel's lines of sight, or None when one is not on the lit first body.
+        // A lone mesh seen through a pinhole: a pixel one facet covers at every point is
+        // its facets' fragments, as the renderer takes it.
+        let rasteriser = tracer.rasteriser(8);
         let per_px: Vec<Option<Vec<[f64; 4]>>> = (0..w * h)
             .into_par_iter()
-            .map(|p| {
+            .map_init(Vec::new, |fragments, p| {
                 let (u0, v0) = ((p % w) as f64, (p / w) as f64);
+                if let Some(r) = &rasteriser {
+                    let area = r.fragments((p % w, p / w), fragments);
+                    if (area - 1.0).abs() <= COVERED {
+                        let mut out = Vec::with_capacity(fragments.len());
+                        for f in fragments.iter() {
+                            let (mu0, mu, cg, kk) =
+                                tracer.photometry(f.centroid.x, f.centroid.y)?;
+                            out.push([mu0, mu, cg, kk * e_per_pl * f.area_px2]);
+                        }
+                        return Some(out);
+                    }
+                }
                 let mut out = Vec::with_capacity((n * n) as usize);
                 for j in 0..n {
                     for i in 0..n {

@@ -19,8 +19,14 @@ Timing, interleaved: each round renders every Mitsuba sample count once (after o
 render per count, which compiles and caches its kernels) and runs `optistim bench` on the
 same scene; medians over the rounds. Both on all cores (`--threads`).
 
-    python python/benches/mitsuba_bennu.py --optistim target/release/optistim \
-        --reference out/bennu_ref/power.fits --rounds 3
+    cargo run --release -- render python/benches/bennu_lambert.toml --reference \
+        --tolerance 1e-5 --out out/bennu_ref
+    pip install mitsuba astropy numpy       # mitsuba 3.9.1, drjit 1.5.0 here
+    apt-get install libllvm19               # Debian 12's LLVM 14/15 cannot compile
+    DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so \
+        python python/benches/mitsuba_bennu.py --reference out/bennu_ref/power.fits
+
+(Dr.Jit 1.5's kernels use an intrinsic, `llvm.maximum`, that LLVM 14 and 15 abort on.)
 """
 
 import argparse

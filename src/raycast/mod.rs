@@ -219,6 +219,21 @@ impl<'a> Tracer<'a> {
         Some((self.camera_m + dir * t, normal))
     }
 
+    /// Whether the first body's mesh facet `facet` is lit all over by the Sun ([`sun_grid`])
+    /// or faces away from it at every corner: no edge of the light crosses it.
+    pub fn lit_all_over_or_unlit(&self, facet: u32) -> bool {
+        let Shape::Mesh(m) = &self.scene.body.shape else {
+            return false;
+        };
+        if self.sun_grid.as_ref().is_some_and(|g| g.clear(facet)) {
+            return true;
+        }
+        let n = m.normals()[facet as usize];
+        m.facets()[facet as usize]
+            .iter()
+            .all(|&k| n.dot(self.sun_m - m.vertices_m()[k as usize]) <= 0.0)
+    }
+
     /// The first body's mesh projected for rasterised primary visibility ([`raster`]),
     /// binned by tiles of `tile` px, where that is exact: a mesh body alone (no relief, no
     /// placed bodies) seen through an undistorted camera from outside its bounding sphere.

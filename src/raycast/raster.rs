@@ -21,6 +21,12 @@ use crate::body::mesh::Mesh;
 use crate::camera::Intrinsics;
 use glam::{DMat3, DVec2, DVec3};
 
+/// A pixel's fragments cover it when their areas add up to 1 px^2 within this much.
+pub const COVERED: f64 = 1e-9;
+
+/// Two fragments overlapping by at most this much [px^2] meet along an edge only.
+const OVERLAP_PX2: f64 = 1e-9;
+
 /// A sample that sees no facet.
 pub const NONE: u32 = u32::MAX;
 /// A sample exactly on a projected edge: cast through the BVH.
@@ -37,6 +43,8 @@ struct Projected {
     /// `1/z` [1/m] of the vertices divided by the doubled area: the depth is
     /// `sum_k w_k inv_z[k]` with `w_k` the edge values.
     inv_z: [f64; 3],
+    /// The corners in the image [px].
+    corners: [DVec2; 3],
     lo: DVec2,
     hi: DVec2,
 }
@@ -79,10 +87,99 @@ impl Projected {
             facet: f,
             edges,
             inv_z: inv_z.map(|x| x * inv_area),
+            corners: p,
             lo: p[0].min(p[1]).min(p[2]),
             hi: p[0].max(p[1]).max(p[2]),
         })
     }
+}
+
+/// The part of a pixel one facet covers ([`Rasteriser::fragments`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Fragment {
+    pub facet: u32,
+    /// Its facet's place among the projected ones.
+    projected: u32,
+    /// Its area [px^2] and centroid [px].
+    pub area_px2: f64,
+    pub centroid: DVec2,
+}
+
+/// A convex polygon of at most 10 corners [px] (a triangle clipped by up to seven lines, each
+/// of which adds at most one).
+#[derive(Clone, Copy)]
+struct Polygon {
+    corners: [DVec2; 10],
+    n: usize,
+}
+
+impl Polygon {
+    fn triangle(t: [DVec2; 3]) -> Polygon {
+        let mut corners = [DVec2::ZERO; 10];
+        corners[..3].copy_from_slice(&t);
+        Polygon { corners, n: 3 }
+    }
+
+    /// The part where `a x + b y + c >= 0` (Sutherland-Hodgman; the crossing at
+    /// `t = s0 / (s0 - s1)`).
+    fn clip(&self, [a, b, c]: [f64; 3]) -> Polygon {
+        let side = |p: DVec2| a * p.x + b * p.y + c;
+        let mut out = Polygon {
+            corners: [DVec2::ZERO; 10],
+            n: 0,
+        };
+        for k in 0..self.n {
+            let (p, q) = (self.corners[k], self.corners[(k + 1) % self.n]);
+            let (sp, sq) = (side(p), side(q));
+            if sp >= 0.0 && out.n < 10 {
+                out.corners[out.n] = p;
+                out.n += 1;
+            }
+            if (sp >= 0.0) != (sq >= 0.0) && out.n < 10 {
+                out.corners[out.n] = p + (q - p) * (sp / (sp - sq));
+                out.n += 1;
+            }
+        }
+        out
+    }
+
+    /// The part inside the box `[x0, y0, x1, y1]`.
+    fn clip_box(&self, [x0, y0, x1, y1]: [f64; 4]) -> Polygon {
+        [
+            [1.0, 0.0, -x0],
+            [-1.0, 0.0, x1],
+            [0.0, 1.0, -y0],
+            [0.0, -1.0, y1],
+        ]
+        .into_iter()
+        .fold(*self, |p, line| if p.n < 3 { p } else { p.clip(line) })
+    }
+
+    /// Area [px^2] and centroid [px] (the shoelace formula about the first corner); `None`
+    /// when there is no area.
+    fn area_centroid(&self) -> Option<(f64, DVec2)> {
+        if self.n < 3 {
+            return None;
+        }
+        let a0 = self.corners[0];
+        let (mut twice, mut c) = (0.0, DVec2::ZERO);
+        for k in 1..self.n - 1 {
+            let (p, q) = (self.corners[k] - a0, self.corners[k + 1] - a0);
+            let cross = p.x * q.y - p.y * q.x;
+            twice += cross;
+            c += (p + q) * cross;
+        }
+        if twice == 0.0 {
+            return None;
+        }
+        Some((0.5 * twice.abs(), a0 + c / (3.0 * twice)))
+    }
+}
+
+/// The area [px^2] and centroid [px] of the triangle `corners` clipped to the box
+/// `[x0, y0, x1, y1]`; `None` when nothing is left.
+fn clipped(corners: [DVec2; 3], px: [f64; 4]) -> Option<(f64, DVec2)> {
+    Polygon::triangle(corners).clip_box(px).area_centroid()
 }
 
 /// A mesh's facets projected into one frame's image and binned by tiles.
@@ -144,6 +241,71 @@ impl Rasteriser {
             projected,
             bins: Bins::new(tiles, &spans),
             tile,
+        })
+    }
+
+    /// The exact shares of pixel `(i, j)` (the square `[i, i + 1] x [j, j + 1]`) that the
+    /// projected facets cover, as `fragments` (each facet's triangle clipped to the square,
+    /// Sutherland-Hodgman); returns the sum of their areas [px^2]. On a closed mesh only
+    /// fronts are projected, so a sum of 1 means one facet over every point of the pixel:
+    /// nothing in it hides anything else, and the fragments tile it.
+    pub fn fragments(&self, (i, j): (usize, usize), fragments: &mut Vec<Fragment>) -> f64 {
+        fragments.clear();
+        let (x0, y0) = (i as f64, j as f64);
+        let (x1, y1) = (x0 + 1.0, y0 + 1.0);
+        let mut sum = 0.0;
+        for &k in self.bins.cell(i / self.tile, j / self.tile) {
+            let t = &self.projected[k as usize];
+            if t.hi.x <= x0 || t.lo.x >= x1 || t.hi.y <= y0 || t.lo.y >= y1 {
+                continue;
+            }
+            // The pixel's corners against each edge: all inside, the whole pixel; all
+            // outside one edge, nothing.
+            let mut inside = true;
+            let mut outside = false;
+            for e in &t.edges {
+                let at = |x: f64, y: f64| e[0] * x + e[1] * y + e[2];
+                let c = [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)];
+                inside &= c.iter().all(|&v| v >= 0.0);
+                outside |= c.iter().all(|&v| v <= 0.0);
+            }
+            if outside {
+                continue;
+            }
+            let (area, centroid) = if inside {
+                (1.0, DVec2::new(x0 + 0.5, y0 + 0.5))
+            } else {
+                match clipped(t.corners, [x0, y0, x1, y1]) {
+                    Some(c) => c,
+                    None => continue,
+                }
+            };
+            sum += area;
+            fragments.push(Fragment {
+                facet: t.facet,
+                projected: k,
+                area_px2: area,
+                centroid,
+            });
+        }
+        sum
+    }
+
+    /// Whether no two of pixel `(i, j)`'s `fragments` overlap (their facets' triangles meet
+    /// within the pixel in no more than an edge): then, on a closed mesh, what they leave
+    /// uncovered is where lines of sight miss the body, and the fragments are exact there too.
+    pub fn single_layer(&self, (i, j): (usize, usize), fragments: &[Fragment]) -> bool {
+        let px = [i as f64, j as f64, i as f64 + 1.0, j as f64 + 1.0];
+        fragments.iter().enumerate().all(|(k, a)| {
+            let pa = Polygon::triangle(self.projected[a.projected as usize].corners).clip_box(px);
+            fragments[k + 1..].iter().all(|b| {
+                let tb = &self.projected[b.projected as usize];
+                tb.edges
+                    .iter()
+                    .fold(pa, |p, &e| if p.n < 3 { p } else { p.clip(e) })
+                    .area_centroid()
+                    .is_none_or(|(area, _)| area <= OVERLAP_PX2)
+            })
         })
     }
 
@@ -209,5 +371,37 @@ impl Rasteriser {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_triangle_clipped_to_a_pixel_keeps_the_area_and_centroid_inside_it() {
+        let px = [2.0, 3.0, 3.0, 4.0];
+        // Wholly inside: itself.
+        let t = [(2.2, 3.1), (2.9, 3.2), (2.5, 3.9)].map(|(x, y)| DVec2::new(x, y));
+        let (a, c) = clipped(t, px).unwrap();
+        let want: f64 = 0.5 * (0.7 * 0.8 - 0.1 * 0.3);
+        assert!((a - want).abs() < 1e-12, "{a}");
+        let mean = (t[0] + t[1] + t[2]) / 3.0;
+        assert!((c - mean).length() < 1e-12);
+        // A big triangle covering the pixel: the whole pixel.
+        let big = [(-10.0, -10.0), (20.0, -10.0), (2.5, 20.0)].map(|(x, y)| DVec2::new(x, y));
+        let (a, c) = clipped(big, px).unwrap();
+        assert!((a - 1.0).abs() < 1e-12 && (c - DVec2::new(2.5, 3.5)).length() < 1e-12);
+        // The diagonal half of the pixel below the line from its corner (2, 3) to (3, 4).
+        let half = [(2.0, 3.0), (10.0, 11.0), (10.0, -5.0)].map(|(x, y)| DVec2::new(x, y));
+        let (a, c) = clipped(half, px).unwrap();
+        assert!((a - 0.5).abs() < 1e-12, "{a}");
+        assert!(
+            (c - DVec2::new(2.0 + 2.0 / 3.0, 3.0 + 1.0 / 3.0)).length() < 1e-12,
+            "{c}"
+        );
+        // Beside the pixel: nothing.
+        let beside = [(4.0, 3.0), (5.0, 3.0), (4.5, 4.0)].map(|(x, y)| DVec2::new(x, y));
+        assert!(clipped(beside, px).is_none());
     }
 }

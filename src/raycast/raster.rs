@@ -105,81 +105,91 @@ pub struct Fragment {
     pub centroid: DVec2,
 }
 
-/// A convex polygon of at most 10 corners [px] (a triangle clipped by up to seven lines, each
-/// of which adds at most one).
-#[derive(Clone, Copy)]
-struct Polygon {
-    corners: [DVec2; 10],
-    n: usize,
+/// Room for a convex polygon's corners: a triangle clipped by up to seven lines, each of
+/// which adds at most one.
+type Corners = [DVec2; 10];
+
+/// The part of the convex polygon `src` where `a x + b y + c >= 0`, into `dst`
+/// (Sutherland-Hodgman; the crossing at `t = s0 / (s0 - s1)`); returns its corner count.
+#[inline]
+fn clip_line(src: &[DVec2], dst: &mut Corners, [a, b, c]: [f64; 3]) -> usize {
+    let side = |p: DVec2| a * p.x + b * p.y + c;
+    let mut n = 0;
+    let mut sp = side(src[src.len() - 1]);
+    let mut p = src[src.len() - 1];
+    for &q in src {
+        let sq = side(q);
+        if (sp >= 0.0) != (sq >= 0.0) && n < dst.len() {
+            dst[n] = p + (q - p) * (sp / (sp - sq));
+            n += 1;
+        }
+        if sq >= 0.0 && n < dst.len() {
+            dst[n] = q;
+            n += 1;
+        }
+        (p, sp) = (q, sq);
+    }
+    n
 }
 
-impl Polygon {
-    fn triangle(t: [DVec2; 3]) -> Polygon {
-        let mut corners = [DVec2::ZERO; 10];
-        corners[..3].copy_from_slice(&t);
-        Polygon { corners, n: 3 }
+/// Area [px^2] and centroid [px] of a convex polygon (the shoelace formula about its first
+/// corner); `None` when it has no area.
+fn area_centroid(p: &[DVec2]) -> Option<(f64, DVec2)> {
+    if p.len() < 3 {
+        return None;
     }
-
-    /// The part where `a x + b y + c >= 0` (Sutherland-Hodgman; the crossing at
-    /// `t = s0 / (s0 - s1)`).
-    fn clip(&self, [a, b, c]: [f64; 3]) -> Polygon {
-        let side = |p: DVec2| a * p.x + b * p.y + c;
-        let mut out = Polygon {
-            corners: [DVec2::ZERO; 10],
-            n: 0,
-        };
-        for k in 0..self.n {
-            let (p, q) = (self.corners[k], self.corners[(k + 1) % self.n]);
-            let (sp, sq) = (side(p), side(q));
-            if sp >= 0.0 && out.n < 10 {
-                out.corners[out.n] = p;
-                out.n += 1;
-            }
-            if (sp >= 0.0) != (sq >= 0.0) && out.n < 10 {
-                out.corners[out.n] = p + (q - p) * (sp / (sp - sq));
-                out.n += 1;
-            }
-        }
-        out
+    let (mut twice, mut c) = (0.0, DVec2::ZERO);
+    for k in 1..p.len() - 1 {
+        let (u, v) = (p[k] - p[0], p[k + 1] - p[0]);
+        let cross = u.x * v.y - u.y * v.x;
+        twice += cross;
+        c += (u + v) * cross;
     }
-
-    /// The part inside the box `[x0, y0, x1, y1]`.
-    fn clip_box(&self, [x0, y0, x1, y1]: [f64; 4]) -> Polygon {
-        [
-            [1.0, 0.0, -x0],
-            [-1.0, 0.0, x1],
-            [0.0, 1.0, -y0],
-            [0.0, -1.0, y1],
-        ]
-        .into_iter()
-        .fold(*self, |p, line| if p.n < 3 { p } else { p.clip(line) })
+    if twice == 0.0 {
+        return None;
     }
-
-    /// Area [px^2] and centroid [px] (the shoelace formula about the first corner); `None`
-    /// when there is no area.
-    fn area_centroid(&self) -> Option<(f64, DVec2)> {
-        if self.n < 3 {
-            return None;
-        }
-        let a0 = self.corners[0];
-        let (mut twice, mut c) = (0.0, DVec2::ZERO);
-        for k in 1..self.n - 1 {
-            let (p, q) = (self.corners[k] - a0, self.corners[k + 1] - a0);
-            let cross = p.x * q.y - p.y * q.x;
-            twice += cross;
-            c += (p + q) * cross;
-        }
-        if twice == 0.0 {
-            return None;
-        }
-        Some((0.5 * twice.abs(), a0 + c / (3.0 * twice)))
-    }
+    Some((0.5 * twice.abs(), p[0] + c / (3.0 * twice)))
 }
 
-/// The area [px^2] and centroid [px] of the triangle `corners` clipped to the box
-/// `[x0, y0, x1, y1]`; `None` when nothing is left.
-fn clipped(corners: [DVec2; 3], px: [f64; 4]) -> Option<(f64, DVec2)> {
-    Polygon::triangle(corners).clip_box(px).area_centroid()
+/// The triangle `corners` clipped by `lines` (each keeping `a x + b y + c >= 0`): its area
+/// [px^2] and centroid [px]; `None` when nothing is left.
+fn clipped_by(corners: [DVec2; 3], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
+    let (mut a, mut b) = ([DVec2::ZERO; 10], [DVec2::ZERO; 10]);
+    a[..3].copy_from_slice(&corners);
+    let (mut src, mut dst) = (&mut a, &mut b);
+    let mut n = 3;
+    for &line in lines {
+        n = clip_line(&src[..n], dst, line);
+        if n < 3 {
+            return None;
+        }
+        std::mem::swap(&mut src, &mut dst);
+    }
+    area_centroid(&src[..n])
+}
+
+/// The area [px^2] and centroid [px] of the triangle `corners` (its box `lo`, `hi`)
+/// clipped to the box `[x0, y0, x1, y1]`, by the sides it crosses only; `None` when nothing
+/// is left.
+fn clipped(
+    corners: [DVec2; 3],
+    (lo, hi): (DVec2, DVec2),
+    [x0, y0, x1, y1]: [f64; 4],
+) -> Option<(f64, DVec2)> {
+    let mut lines = [[0.0; 3]; 4];
+    let mut n = 0;
+    for (crosses, line) in [
+        (lo.x < x0, [1.0, 0.0, -x0]),
+        (hi.x > x1, [-1.0, 0.0, x1]),
+        (lo.y < y0, [0.0, 1.0, -y0]),
+        (hi.y > y1, [0.0, -1.0, y1]),
+    ] {
+        if crosses {
+            lines[n] = line;
+            n += 1;
+        }
+    }
+    clipped_by(corners, &lines[..n])
 }
 
 /// A mesh's facets projected into one frame's image and binned by tiles.
@@ -275,7 +285,7 @@ impl Rasteriser {
             let (area, centroid) = if inside {
                 (1.0, DVec2::new(x0 + 0.5, y0 + 0.5))
             } else {
-                match clipped(t.corners, [x0, y0, x1, y1]) {
+                match clipped(t.corners, (t.lo, t.hi), [x0, y0, x1, y1]) {
                     Some(c) => c,
                     None => continue,
                 }
@@ -295,16 +305,14 @@ impl Rasteriser {
     /// within the pixel in no more than an edge): then, on a closed mesh, what they leave
     /// uncovered is where lines of sight miss the body, and the fragments are exact there too.
     pub fn single_layer(&self, (i, j): (usize, usize), fragments: &[Fragment]) -> bool {
-        let px = [i as f64, j as f64, i as f64 + 1.0, j as f64 + 1.0];
+        let (x0, y0) = (i as f64, j as f64);
+        let pixel = [[1.0, 0.0, -x0], [-1.0, 0.0, x0 + 1.0], [0.0, 1.0, -y0], [0.0, -1.0, y0 + 1.0]];
         fragments.iter().enumerate().all(|(k, a)| {
-            let pa = Polygon::triangle(self.projected[a.projected as usize].corners).clip_box(px);
+            let ta = &self.projected[a.projected as usize];
             fragments[k + 1..].iter().all(|b| {
-                let tb = &self.projected[b.projected as usize];
-                tb.edges
-                    .iter()
-                    .fold(pa, |p, &e| if p.n < 3 { p } else { p.clip(e) })
-                    .area_centroid()
-                    .is_none_or(|(area, _)| area <= OVERLAP_PX2)
+                let e = self.projected[b.projected as usize].edges;
+                let lines = [pixel[0], pixel[1], pixel[2], pixel[3], e[0], e[1], e[2]];
+                clipped_by(ta.corners, &lines).is_none_or(|(area, _)| area <= OVERLAP_PX2)
             })
         })
     }
@@ -378,23 +386,27 @@ impl Rasteriser {
 mod tests {
     use super::*;
 
+    fn box_of(t: [DVec2; 3]) -> (DVec2, DVec2) {
+        (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]))
+    }
+
     #[test]
     fn a_triangle_clipped_to_a_pixel_keeps_the_area_and_centroid_inside_it() {
         let px = [2.0, 3.0, 3.0, 4.0];
         // Wholly inside: itself.
         let t = [(2.2, 3.1), (2.9, 3.2), (2.5, 3.9)].map(|(x, y)| DVec2::new(x, y));
-        let (a, c) = clipped(t, px).unwrap();
+        let (a, c) = clipped(t, box_of(t), px).unwrap();
         let want: f64 = 0.5 * (0.7 * 0.8 - 0.1 * 0.3);
         assert!((a - want).abs() < 1e-12, "{a}");
         let mean = (t[0] + t[1] + t[2]) / 3.0;
         assert!((c - mean).length() < 1e-12);
         // A big triangle covering the pixel: the whole pixel.
         let big = [(-10.0, -10.0), (20.0, -10.0), (2.5, 20.0)].map(|(x, y)| DVec2::new(x, y));
-        let (a, c) = clipped(big, px).unwrap();
+        let (a, c) = clipped(big, box_of(big), px).unwrap();
         assert!((a - 1.0).abs() < 1e-12 && (c - DVec2::new(2.5, 3.5)).length() < 1e-12);
         // The diagonal half of the pixel below the line from its corner (2, 3) to (3, 4).
         let half = [(2.0, 3.0), (10.0, 11.0), (10.0, -5.0)].map(|(x, y)| DVec2::new(x, y));
-        let (a, c) = clipped(half, px).unwrap();
+        let (a, c) = clipped(half, box_of(half), px).unwrap();
         assert!((a - 0.5).abs() < 1e-12, "{a}");
         assert!(
             (c - DVec2::new(2.0 + 2.0 / 3.0, 3.0 + 1.0 / 3.0)).length() < 1e-12,
@@ -402,6 +414,6 @@ mod tests {
         );
         // Beside the pixel: nothing.
         let beside = [(4.0, 3.0), (5.0, 3.0), (4.5, 4.0)].map(|(x, y)| DVec2::new(x, y));
-        assert!(clipped(beside, px).is_none());
+        assert!(clipped(beside, box_of(beside), px).is_none());
     }
 }

@@ -306,7 +306,12 @@ impl Rasteriser {
     /// uncovered is where lines of sight miss the body, and the fragments are exact there too.
     pub fn single_layer(&self, (i, j): (usize, usize), fragments: &[Fragment]) -> bool {
         let (x0, y0) = (i as f64, j as f64);
-        let pixel = [[1.0, 0.0, -x0], [-1.0, 0.0, x0 + 1.0], [0.0, 1.0, -y0], [0.0, -1.0, y0 + 1.0]];
+        let pixel = [
+            [1.0, 0.0, -x0],
+            [-1.0, 0.0, x0 + 1.0],
+            [0.0, 1.0, -y0],
+            [0.0, -1.0, y0 + 1.0],
+        ];
         fragments.iter().enumerate().all(|(k, a)| {
             let ta = &self.projected[a.projected as usize];
             fragments[k + 1..].iter().all(|b| {

@@ -8,10 +8,11 @@
 //! sight ([`crate::raycast::Tracer::photometry`]: `mu0`, `mu`, `cos g` and the `(P/L)` per
 //! unit of `f_r`), or, for a lone mesh through a pinhole, the line of sight through each of
 //! its facets' fragments' centroids weighted by the fragment's area (as
-//! [`crate::raycast::sampled`] renders it), the geometry cast once, so that a trial set of parameters costs only the
-//! BRDF's evaluations. A pixel is used when all its lines of sight and its eight neighbours'
-//! meet the body in direct sunlight (limb, terminator and shadow edges are left out, where
-//! the image depends on sub-pixel geometry) and it is not saturated.
+//! [`crate::raycast::sampled`] renders it), the geometry cast once, so that a trial set of
+//! parameters costs only the BRDF's evaluations. A pixel is used when all its lines of sight
+//! and its eight neighbours' meet the body in direct sunlight (limb, terminator and shadow
+//! edges are left out, where the image depends on sub-pixel geometry) and it is not
+//! saturated.
 //!
 //! Observed DN become electrons, `e = (DN step - offset) / gain`, with the variance
 //! `m + sigma_read^2 + (step / gain)^2 / 12` (shot noise on the model's electrons `m`, read

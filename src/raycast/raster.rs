@@ -154,7 +154,7 @@ fn area_centroid(p: &[DVec2]) -> Option<(f64, DVec2)> {
 /// The triangle `corners` clipped by `lines` (each keeping `a x + b y + c >= 0`): its area
 /// [px^2] and centroid [px]; `None` when nothing is left.
 fn clipped_by(corners: [DVec2; 3], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
-    let (mut a, mut b) = ([DVec2::ZERO; 10], [DVec2::ZERO; 10]);
+    let (mut a, mut b): (Corners, Corners) = ([DVec2::ZERO; 10], [DVec2::ZERO; 10]);
     a[..3].copy_from_slice(&corners);
     let (mut src, mut dst) = (&mut a, &mut b);
     let mut n = 3;

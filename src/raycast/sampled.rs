@@ -23,8 +23,10 @@
 //! whichever facet its ray met (on Bennu at 1 km, facets about 12 px across, 40 % of the lit
 //! pixels). Where every fragment's facet is lit all over ([`super::sun_grid`]) or faces away
 //! from the Sun, no edge of the light crosses the pixel: it is exact (to the second order of the
-//! light's variation within a facet) and is not cast again as an edge. The limb (the pixel
-//! partly covered) and folds (two fronts over one point) are sampled as before.
+//! light's variation within a facet) and is not cast again as an edge. At the limb a pixel
+//! partly covered is tiled the same way when no two of its fragments overlap (what they
+//! leave uncovered is then where lines of sight miss the body); folds (two fronts over one
+//! point) are sampled as before.
 //!
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.
@@ -187,7 +189,6 @@ pub fn render(
                         for i in u0..u0 + cols {
                             let p = j * w + i;
                             if let Some(r) = &rasteriser {
-                                // One facet over every point of the pixel: its fragments.
                                 // One facet over every point of the pixel, or over every
                                 // point of the part the body covers (the limb): its
                                 // fragments.

@@ -44,35 +44,10 @@ import time
 import tomllib
 
 import numpy as np
-from astropy.io import fits
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def read_fits_top_down(path):
-    with fits.open(path) as f:
-        h = f[0].header
-        data = np.asarray(f[0].data, dtype=np.float64)
-    if data.ndim == 3:
-        data = data.sum(axis=0)
-    if h.get("ROWORDER", "BOTTOM_UP").strip() == "BOTTOM_UP":
-        data = data[::-1, :]
-    return data
-
-
-def errors(image, reference):
-    """The figures of src/fidelity/metrics.rs: total, and median / p99 over lit pixels."""
-    total = abs(image.sum() / reference.sum() - 1.0)
-    positive = reference[reference > 0]
-    lit = 0.01 * np.quantile(positive, 0.99)
-    m = reference >= lit
-    rel = np.abs(image[m] / reference[m] - 1.0)
-    return {
-        "total": float(total),
-        "median": float(np.median(rel)),
-        "p99": float(np.quantile(rel, 0.99)),
-        "lit_px": int(m.sum()),
-    }
+sys.path.insert(0, HERE)
+from frame_error import errors, read_fits_top_down  # noqa: E402
 
 
 def mitsuba_scene(mi, scene, scene_dir, spp):

@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from mitsuba_bennu import errors, read_fits_top_down  # noqa: E402
+from frame_error import errors, read_fits_top_down  # noqa: E402
 
 ROWS = "0,71,142,178,213,284,355,426,497,526,528,530,532,568,639,710"
 

@@ -518,11 +518,11 @@ fn solve(a: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
         }
         m.swap(col, piv);
         v.swap(col, piv);
+        let pivot_row = m[col].clone();
         for row in 0..n {
             if row != col {
-                let f = m[row][col] / m[col][col];
-                let pivot_row = m[col].clone();
-                for (x, p) in m[row].iter_mut().zip(pivot_row) {
+                let f = m[row][col] / pivot_row[col];
+                for (x, p) in m[row].iter_mut().zip(&pivot_row) {
                     *x -= f * p;
                 }
                 v[row] -= f * v[col];

@@ -35,7 +35,7 @@ const CELLS_PER_FACET: f64 = 2.0;
 
 /// A sun-facing facet seen along the Sun's direction: its index in the mesh, its corners and
 /// their box in the grid's plane [m], and its extent along the direction to the Sun [m].
-struct Projected {
+struct SunFacing {
     facet: usize,
     corners: [DVec2; 3],
     lo: DVec2,
@@ -97,7 +97,7 @@ impl SunGrid {
             tris.push([a, b - a, c - a]);
             boxes.push((lo, hi));
             let depth = [a, b, c].map(|x| x.dot(s0));
-            shadows_of.push(Projected {
+            shadows_of.push(SunFacing {
                 facet: f,
                 corners: p,
                 lo: p[0].min(p[1]).min(p[2]),

@@ -1673,6 +1673,9 @@ impl Validator<'_> {
                 *field = n as u32;
             }
         }
+        if let Some(q) = r.raycast_quadratic_light {
+            s.raycast_quadratic_light = q;
+        }
         if let Some(k) = r.scattering_orders {
             if !(0..=20).contains(&k) {
                 return self.err("render.scattering_orders", k, "an integer in [0, 20]");

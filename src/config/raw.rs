@@ -307,6 +307,8 @@ pub struct RawRender {
     /// Mesh bodies: rays per pixel side, everywhere and at edges.
     pub raycast_samples: Option<i64>,
     pub raycast_edge_samples: Option<i64>,
+    /// Mesh bodies: a large facet's light interpolated (true, default) or evaluated per sample.
+    pub raycast_quadratic_light: Option<bool>,
     /// Mesh bodies: orders of scattered light in the image (0: none).
     pub scattering_orders: Option<i64>,
     /// `fixed` (default: these settings for every frame) or `budget` (per frame, the

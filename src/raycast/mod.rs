@@ -20,6 +20,7 @@
 //! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
 
 mod bins;
+pub mod facet_light;
 pub mod raster;
 pub mod reference;
 pub mod sampled;
@@ -64,6 +65,19 @@ pub struct Tracer<'a> {
     /// A closed mesh body's sun-facing facets binned across the Sun's direction: its shadows
     /// on itself without the BVH ([`sun_grid`]).
     sun_grid: Option<sun_grid::SunGrid>,
+}
+
+/// The light of a point of the first body as if nothing hid the Sun from it
+/// ([`Tracer::first_body_light`]), and what its shadow test needs.
+struct FirstBodyLight {
+    /// Direct sunlight and light scattered onto it by the rest of the body, `(P/L)` per px^2.
+    direct: f64,
+    scattered: f64,
+    /// Its unit direction from the centre, the normal the BRDF sees, the unit direction to
+    /// the Sun (B).
+    up: DVec3,
+    normal: DVec3,
+    s: DVec3,
 }
 
 /// What one line of sight meets.
@@ -267,20 +281,17 @@ impl<'a> Tracer<'a> {
     /// first body's mesh facet `facet` ([`raster`]): the ray meets that facet's plane, no BVH.
     #[inline]
     pub fn cast_onto(&self, u: f64, v: f64, facet: u32) -> Hit {
-        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
         let Shape::Mesh(m) = &self.scene.body.shape else {
-            return self.bring_back(dir, cos_eps, solid, self.nearest(dir));
+            return self.cast(u, v);
         };
-        let normal = m.normals()[facet as usize];
-        let a = m.vertices_m()[m.facets()[facet as usize][0] as usize];
-        let t = normal.dot(a - self.camera_m) / normal.dot(dir);
-        let nearest = if t.is_finite() && t > 0.0 {
-            Some((t, normal, Some(facet), 0))
-        } else {
+        match self.onto_facet(u, v, facet) {
+            Some((dir, cos_eps, solid, t)) => {
+                let normal = m.normals()[facet as usize];
+                self.bring_back(dir, cos_eps, solid, Some((t, normal, Some(facet), 0)))
+            }
             // Edge-on to the line of sight: the BVH decides.
-            self.nearest(dir)
-        };
-        self.bring_back(dir, cos_eps, solid, nearest)
+            None => self.cast(u, v),
+        }
     }
 
     /// The light the line of sight `dir` (with its `cos(eps)` and solid-angle factor) brings
@@ -305,37 +316,65 @@ impl<'a> Tracer<'a> {
             pl_per_px2: pl,
             range_m: t,
         };
-        let to_sun = self.sun_m - p;
-        let d_sun2 = to_sun.length_squared();
-        let s = to_sun / d_sun2.sqrt();
         if which > 0 {
+            let to_sun = self.sun_m - p;
+            let d_sun2 = to_sun.length_squared();
+            let s = to_sun / d_sun2.sqrt();
             return hit(self.shade_other(which - 1, p, dir, s, shape_normal, d_sun2)
                 * cos_eps
                 * solid);
         }
+        let light = self.first_body_light(p, dir, cos_eps, solid, shape_normal, facet);
+        if light.direct > 0.0 && !self.sees_sun(p, light.up, light.normal, light.s, facet) {
+            return hit(light.scattered);
+        }
+        hit(light.direct + light.scattered)
+    }
+
+    /// The light the first body's surface point `p` (B; `shape_normal` the shape's outward
+    /// normal there, `facet` a mesh's facet) sends back along the line of sight `dir` (with its
+    /// `cos(eps)` and solid-angle factor), as if nothing hid the Sun from it: the direct
+    /// sunlight it reflects and the light scattered onto it, both `(P/L)` per px^2.
+    #[inline]
+    fn first_body_light(
+        &self,
+        p: DVec3,
+        dir: DVec3,
+        cos_eps: f64,
+        solid: f64,
+        shape_normal: DVec3,
+        facet: Option<u32>,
+    ) -> FirstBodyLight {
+        let to_sun = self.sun_m - p;
+        let d_sun2 = to_sun.length_squared();
+        let s = to_sun / d_sun2.sqrt();
         let body = &self.scene.body;
         let up = p.normalize();
         let normal = match &body.relief {
             Some(r) => r.at(up, false).normal,
             None => shape_normal,
         };
+        let mut light = FirstBodyLight {
+            direct: 0.0,
+            scattered: 0.0,
+            up,
+            normal,
+            s,
+        };
         let g = Local::new(normal, s, -dir);
         if g.mu <= 0.0 {
-            return hit(0.0);
+            return light;
         }
         // Light scattered onto the facet by the others, reflected as by a Lambertian surface
         // of the body's Bond albedo ([`crate::irradiance`]): `(rho / pi) R_i`, with `R_i` in
         // units of the solar irradiance at the body's centre (`A_sun / d_0^2` here).
-        let scattered = match (self.scattered, facet) {
-            (Some((r, rho_over_pi)), Some(f)) => {
-                self.k_px * rho_over_pi * r[f as usize] / self.sun_m.length_squared()
-                    * cos_eps
-                    * solid
-            }
-            _ => 0.0,
-        };
-        if g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s, facet) {
-            return hit(scattered);
+        if let (Some((r, rho_over_pi)), Some(f)) = (self.scattered, facet) {
+            light.scattered = self.k_px * rho_over_pi * r[f as usize] / self.sun_m.length_squared()
+                * cos_eps
+                * solid;
+        }
+        if g.mu0 <= 0.0 {
+            return light;
         }
         let f_r = match &body.albedo_map {
             Some(m) => body
@@ -344,7 +383,89 @@ impl<'a> Tracer<'a> {
                 .eval(&g),
             None => body.brdf.eval(&g),
         };
-        hit(self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid + scattered)
+        light.direct = self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid;
+        light
+    }
+
+    /// Where the line of sight through pixel position `(u, v)` meets the plane of the first
+    /// body's mesh facet `facet`: the line of sight (B), its `cos(eps)` and solid-angle factor,
+    /// and the range [m]; `None` for a body that is not a mesh, or a plane met edge-on or
+    /// behind the camera.
+    #[inline]
+    fn onto_facet(&self, u: f64, v: f64, facet: u32) -> Option<(DVec3, f64, f64, f64)> {
+        let Shape::Mesh(m) = &self.scene.body.shape else {
+            return None;
+        };
+        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
+        let normal = m.normals()[facet as usize];
+        let a = m.vertices_m()[m.facets()[facet as usize][0] as usize];
+        let t = normal.dot(a - self.camera_m) / normal.dot(dir);
+        (t.is_finite() && t > 0.0).then_some((dir, cos_eps, solid, t))
+    }
+
+    /// The light of the first body's mesh facet `facet` where the line of sight through pixel
+    /// position `(u, v)` meets its plane, as if nothing hid the Sun: `(direct, scattered)`
+    /// `(P/L)` per px^2 ([`Tracer::first_body_light`]); `None` where the plane is not met in
+    /// front. What [`facet_light`] interpolates.
+    pub fn facet_light(&self, u: f64, v: f64, facet: u32) -> Option<(f64, f64)> {
+        let (dir, cos_eps, solid, t) = self.onto_facet(u, v, facet)?;
+        let Shape::Mesh(m) = &self.scene.body.shape else {
+            return None;
+        };
+        let normal = m.normals()[facet as usize];
+        let light = self.first_body_light(
+            self.camera_m + dir * t,
+            dir,
+            cos_eps,
+            solid,
+            normal,
+            Some(facet),
+        );
+        Some((light.direct, light.scattered))
+    }
+
+    /// [`Tracer::cast_onto`] with the facet's light, unshadowed, given by `light` (`(direct,
+    /// scattered)` at `(u, v)`, [`facet_light::FacetLights`]): only the range and, where the
+    /// facet is not lit all over, whether the point sees the Sun, are cast. Without `range`,
+    /// a facet lit all over or facing away from the Sun casts nothing and the hit's range is
+    /// 0 (not cast).
+    #[inline]
+    pub fn cast_onto_with(
+        &self,
+        u: f64,
+        v: f64,
+        facet: u32,
+        (direct, scattered): (f64, f64),
+        range: bool,
+    ) -> Hit {
+        let unshadowed = direct <= 0.0 || self.sun_grid.as_ref().is_some_and(|g| g.clear(facet));
+        if unshadowed && !range {
+            return Hit {
+                pl_per_px2: direct.max(0.0) + scattered,
+                range_m: 0.0,
+            };
+        }
+        let Some((dir, _, _, t)) = self.onto_facet(u, v, facet) else {
+            return self.cast_onto(u, v, facet);
+        };
+        let hit = |pl| Hit {
+            pl_per_px2: pl,
+            range_m: t,
+        };
+        if unshadowed {
+            return hit(direct.max(0.0) + scattered);
+        }
+        let Shape::Mesh(m) = &self.scene.body.shape else {
+            return hit(direct + scattered);
+        };
+        let p = self.camera_m + dir * t;
+        let s = (self.sun_m - p).normalize();
+        let normal = m.normals()[facet as usize];
+        if self.sees_sun(p, p.normalize(), normal, s, Some(facet)) {
+            hit(direct + scattered)
+        } else {
+            hit(scattered)
+        }
     }
 
     /// The photometric geometry of the line of sight through `(u, v)` where it meets the first

@@ -94,6 +94,72 @@ impl Projected {
     }
 }
 
+impl Projected {
+    /// The part of pixel `[x0, x0 + 1] x [y0, y0 + 1]` this facet (the `k`-th projected)
+    /// covers, `None` for none. The pixel's corners against each edge: all inside, the whole
+    /// pixel; all outside one edge, nothing; otherwise the pixel clipped by the edges that
+    /// cross it (it lies inside the others' half-planes already).
+    #[inline]
+    fn share(&self, k: u32, x0: f64, y0: f64) -> Option<Fragment> {
+        let mut crossing = [[0.0; 3]; 3];
+        let mut n_crossing = 0;
+        for e in &self.edges {
+            // The edge's least and greatest values over the pixel's corners.
+            let at = e[0] * x0 + e[1] * y0 + e[2];
+            if at + e[0].max(0.0) + e[1].max(0.0) <= 0.0 {
+                return None;
+            }
+            if at + e[0].min(0.0) + e[1].min(0.0) < 0.0 {
+                crossing[n_crossing] = *e;
+                n_crossing += 1;
+            }
+        }
+        let (area_px2, centroid) = if n_crossing == 0 {
+            (1.0, DVec2::new(x0 + 0.5, y0 + 0.5))
+        } else {
+            let (x1, y1) = (x0 + 1.0, y0 + 1.0);
+            let square = [
+                DVec2::new(x0, y0),
+                DVec2::new(x1, y0),
+                DVec2::new(x1, y1),
+                DVec2::new(x0, y1),
+            ];
+            clip_polygon(&square, &crossing[..n_crossing])?
+        };
+        Some(Fragment {
+            facet: self.facet,
+            projected: k,
+            area_px2,
+            centroid,
+        })
+    }
+}
+
+/// The fragments of the pixels of one tile ([`Rasteriser::tile_fragments`]), with the
+/// buffers reused from tile to tile.
+#[derive(Default)]
+pub struct TileFragments {
+    unsorted: Vec<(u32, Fragment)>,
+    sorted: Vec<Fragment>,
+    starts: Vec<u32>,
+    next: Vec<u32>,
+    areas: Vec<f64>,
+}
+
+impl TileFragments {
+    /// Tile-local pixel `p`'s fragments.
+    #[inline]
+    pub fn of(&self, p: usize) -> &[Fragment] {
+        &self.sorted[self.starts[p] as usize..self.starts[p + 1] as usize]
+    }
+
+    /// The sum of their areas [px^2].
+    #[inline]
+    pub fn area(&self, p: usize) -> f64 {
+        self.areas[p]
+    }
+}
+
 /// The part of a pixel one facet covers ([`Rasteriser::fragments`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Fragment {
@@ -154,10 +220,17 @@ fn area_centroid(p: &[DVec2]) -> Option<(f64, DVec2)> {
 /// The triangle `corners` clipped by `lines` (each keeping `a x + b y + c >= 0`): its area
 /// [px^2] and centroid [px]; `None` when nothing is left.
 fn clipped_by(corners: [DVec2; 3], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
+    clip_polygon(&corners, lines)
+}
+
+/// The convex polygon `corners` (at most four) clipped by `lines` (each keeping
+/// `a x + b y + c >= 0`, at most six with four corners): its area [px^2] and centroid [px];
+/// `None` when nothing is left.
+fn clip_polygon(corners: &[DVec2], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
     let (mut a, mut b): (Corners, Corners) = ([DVec2::ZERO; 10], [DVec2::ZERO; 10]);
-    a[..3].copy_from_slice(&corners);
+    a[..corners.len()].copy_from_slice(corners);
     let (mut src, mut dst) = (&mut a, &mut b);
-    let mut n = 3;
+    let mut n = corners.len();
     for &line in lines {
         n = clip_line(&src[..n], dst, line);
         if n < 3 {
@@ -166,30 +239,6 @@ fn clipped_by(corners: [DVec2; 3], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
         std::mem::swap(&mut src, &mut dst);
     }
     area_centroid(&src[..n])
-}
-
-/// The area [px^2] and centroid [px] of the triangle `corners` (its box `lo`, `hi`)
-/// clipped to the box `[x0, y0, x1, y1]`, by the sides it crosses only; `None` when nothing
-/// is left.
-fn clipped(
-    corners: [DVec2; 3],
-    (lo, hi): (DVec2, DVec2),
-    [x0, y0, x1, y1]: [f64; 4],
-) -> Option<(f64, DVec2)> {
-    let mut lines = [[0.0; 3]; 4];
-    let mut n = 0;
-    for (crosses, line) in [
-        (lo.x < x0, [1.0, 0.0, -x0]),
-        (hi.x > x1, [-1.0, 0.0, x1]),
-        (lo.y < y0, [0.0, 1.0, -y0]),
-        (hi.y > y1, [0.0, -1.0, y1]),
-    ] {
-        if crosses {
-            lines[n] = line;
-            n += 1;
-        }
-    }
-    clipped_by(corners, &lines[..n])
 }
 
 /// A mesh's facets projected into one frame's image and binned by tiles.
@@ -254,51 +303,104 @@ impl Rasteriser {
         })
     }
 
+    /// How many facets are projected.
+    pub fn len(&self) -> usize {
+        self.projected.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.projected.is_empty()
+    }
+
+    /// The `k`-th projected facet: its mesh index, its corners in the image [px] and its
+    /// edges' equations (`A u + B v + C`, positive inside, summing to its doubled area).
+    pub fn triangle(&self, k: usize) -> (u32, [DVec2; 3], [[f64; 3]; 3]) {
+        let t = &self.projected[k];
+        (t.facet, t.corners, t.edges)
+    }
+
     /// The exact shares of pixel `(i, j)` (the square `[i, i + 1] x [j, j + 1]`) that the
-    /// projected facets cover, as `fragments` (each facet's triangle clipped to the square,
-    /// Sutherland-Hodgman); returns the sum of their areas [px^2]. On a closed mesh only
-    /// fronts are projected, so a sum of 1 means one facet over every point of the pixel:
-    /// nothing in it hides anything else, and the fragments tile it.
+    /// projected facets cover, as `fragments` (each facet's triangle clipped to the square);
+    /// returns the sum of their areas [px^2]. On a closed mesh only fronts are projected, so a
+    /// sum of 1 means one facet over every point of the pixel: nothing in it hides anything
+    /// else, and the fragments tile it.
     pub fn fragments(&self, (i, j): (usize, usize), fragments: &mut Vec<Fragment>) -> f64 {
         fragments.clear();
         let (x0, y0) = (i as f64, j as f64);
-        let (x1, y1) = (x0 + 1.0, y0 + 1.0);
         let mut sum = 0.0;
         for &k in self.bins.cell(i / self.tile, j / self.tile) {
             let t = &self.projected[k as usize];
-            if t.hi.x <= x0 || t.lo.x >= x1 || t.hi.y <= y0 || t.lo.y >= y1 {
+            if t.hi.x <= x0 || t.lo.x >= x0 + 1.0 || t.hi.y <= y0 || t.lo.y >= y0 + 1.0 {
                 continue;
             }
-            // The pixel's corners against each edge: all inside, the whole pixel; all
-            // outside one edge, nothing.
-            let mut inside = true;
-            let mut outside = false;
-            for e in &t.edges {
-                let at = |x: f64, y: f64| e[0] * x + e[1] * y + e[2];
-                let c = [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)];
-                inside &= c.iter().all(|&v| v >= 0.0);
-                outside |= c.iter().all(|&v| v <= 0.0);
+            if let Some(f) = t.share(k, x0, y0) {
+                sum += f.area_px2;
+                fragments.push(f);
             }
-            if outside {
-                continue;
-            }
-            let (area, centroid) = if inside {
-                (1.0, DVec2::new(x0 + 0.5, y0 + 0.5))
-            } else {
-                match clipped(t.corners, (t.lo, t.hi), [x0, y0, x1, y1]) {
-                    Some(c) => c,
-                    None => continue,
-                }
-            };
-            sum += area;
-            fragments.push(Fragment {
-                facet: t.facet,
-                projected: k,
-                area_px2: area,
-                centroid,
-            });
         }
         sum
+    }
+
+    /// [`Rasteriser::fragments`] for every pixel of the `cols x rows` pixels at `(i0, j0)`,
+    /// which lie in one tile, facet by facet over the pixels each one's box reaches (no box
+    /// test per pixel and facet): `tile.of(p)` are then tile-local pixel `p`'s fragments
+    /// (`p = row * cols + col`), in the same order, and `tile.area(p)` their sum.
+    pub fn tile_fragments(
+        &self,
+        (i0, j0): (usize, usize),
+        (cols, rows): (usize, usize),
+        tile: &mut TileFragments,
+    ) {
+        tile.unsorted.clear();
+        tile.starts.clear();
+        tile.starts.resize(cols * rows + 1, 0);
+        tile.areas.clear();
+        tile.areas.resize(cols * rows, 0.0);
+        for &k in self.bins.cell(i0 / self.tile, j0 / self.tile) {
+            let t = &self.projected[k as usize];
+            // The pixels `i` with `i < hi` and `i + 1 > lo`, inside the region.
+            let span = |lo: f64, hi: f64, first: usize, count: usize| {
+                let a = lo.floor().max(first as f64);
+                let b = (hi.ceil() - 1.0).min((first + count - 1) as f64);
+                (a as usize, b as i64)
+            };
+            let (xa, xb) = span(t.lo.x, t.hi.x, i0, cols);
+            let (ya, yb) = span(t.lo.y, t.hi.y, j0, rows);
+            for y in ya as i64..=yb {
+                for x in xa as i64..=xb {
+                    if let Some(f) = t.share(k, x as f64, y as f64) {
+                        let p = (y as usize - j0) * cols + (x as usize - i0);
+                        tile.areas[p] += f.area_px2;
+                        tile.starts[p + 1] += 1;
+                        tile.unsorted.push((p as u32, f));
+                    }
+                }
+            }
+        }
+        // By pixel, keeping the facets' order within each.
+        for p in 1..tile.starts.len() {
+            tile.starts[p] += tile.starts[p - 1];
+        }
+        tile.sorted.clear();
+        tile.sorted.resize(
+            tile.unsorted.len(),
+            tile.unsorted.first().map_or(
+                Fragment {
+                    facet: 0,
+                    projected: 0,
+                    area_px2: 0.0,
+                    centroid: DVec2::ZERO,
+                },
+                |u| u.1,
+            ),
+        );
+        tile.next.clear();
+        tile.next.extend_from_slice(&tile.starts[..cols * rows]);
+        for &(p, f) in &tile.unsorted {
+            let at = &mut tile.next[p as usize];
+            tile.sorted[*at as usize] = f;
+            *at += 1;
+        }
     }
 
     /// Whether no two of pixel `(i, j)`'s `fragments` overlap (their facets' triangles meet
@@ -391,34 +493,47 @@ impl Rasteriser {
 mod tests {
     use super::*;
 
-    fn box_of(t: [DVec2; 3]) -> (DVec2, DVec2) {
-        (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]))
+    /// The share of pixel (2, 3) the triangle `t` covers, either winding.
+    fn share(t: [(f64, f64); 3]) -> Option<(f64, DVec2)> {
+        let p = t.map(|(x, y)| DVec2::new(x, y));
+        let a = Projected::new(0, p, [0, 1, 2], [1.0; 3], false).unwrap();
+        let b = Projected::new(0, [p[0], p[2], p[1]], [0, 1, 2], [1.0; 3], false).unwrap();
+        let (fa, fb) = (a.share(0, 2.0, 3.0), b.share(0, 2.0, 3.0));
+        assert_eq!(fa.is_some(), fb.is_some());
+        fa.map(|f| {
+            let g = fb.unwrap();
+            assert!((f.area_px2 - g.area_px2).abs() < 1e-15);
+            (f.area_px2, f.centroid)
+        })
     }
 
     #[test]
     fn a_triangle_clipped_to_a_pixel_keeps_the_area_and_centroid_inside_it() {
-        let px = [2.0, 3.0, 3.0, 4.0];
         // Wholly inside: itself.
-        let t = [(2.2, 3.1), (2.9, 3.2), (2.5, 3.9)].map(|(x, y)| DVec2::new(x, y));
-        let (a, c) = clipped(t, box_of(t), px).unwrap();
+        let t = [(2.2, 3.1), (2.9, 3.2), (2.5, 3.9)];
+        let (a, c) = share(t).unwrap();
         let want: f64 = 0.5 * (0.7 * 0.8 - 0.1 * 0.3);
         assert!((a - want).abs() < 1e-12, "{a}");
-        let mean = (t[0] + t[1] + t[2]) / 3.0;
+        let mean = t
+            .iter()
+            .fold(DVec2::ZERO, |m, &(x, y)| m + DVec2::new(x, y))
+            / 3.0;
         assert!((c - mean).length() < 1e-12);
         // A big triangle covering the pixel: the whole pixel.
-        let big = [(-10.0, -10.0), (20.0, -10.0), (2.5, 20.0)].map(|(x, y)| DVec2::new(x, y));
-        let (a, c) = clipped(big, box_of(big), px).unwrap();
+        let (a, c) = share([(-10.0, -10.0), (20.0, -10.0), (2.5, 20.0)]).unwrap();
         assert!((a - 1.0).abs() < 1e-12 && (c - DVec2::new(2.5, 3.5)).length() < 1e-12);
         // The diagonal half of the pixel below the line from its corner (2, 3) to (3, 4).
-        let half = [(2.0, 3.0), (10.0, 11.0), (10.0, -5.0)].map(|(x, y)| DVec2::new(x, y));
-        let (a, c) = clipped(half, box_of(half), px).unwrap();
+        let (a, c) = share([(2.0, 3.0), (10.0, 11.0), (10.0, -5.0)]).unwrap();
         assert!((a - 0.5).abs() < 1e-12, "{a}");
         assert!(
             (c - DVec2::new(2.0 + 2.0 / 3.0, 3.0 + 1.0 / 3.0)).length() < 1e-12,
             "{c}"
         );
-        // Beside the pixel: nothing.
-        let beside = [(4.0, 3.0), (5.0, 3.0), (4.5, 4.0)].map(|(x, y)| DVec2::new(x, y));
-        assert!(clipped(beside, box_of(beside), px).is_none());
+        // A corner of the pixel cut off by a triangle's vertex: two edges cross it.
+        let (a, _) = share([(2.5, 3.5), (2.5, -10.0), (20.0, 3.5)]).unwrap();
+        assert!((a - 0.25).abs() < 1e-12, "{a}");
+        // Beside the pixel, or touching it along its side only: nothing.
+        assert!(share([(4.0, 3.0), (5.0, 3.0), (4.5, 4.0)]).is_none());
+        assert!(share([(3.0, 3.0), (5.0, 3.0), (3.0, 4.0)]).is_none());
     }
 }

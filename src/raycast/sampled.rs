@@ -31,6 +31,7 @@
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.
 
+use super::facet_light::FacetLights;
 use super::raster::{self, COVERED};
 use super::{Coverage, Hit, Tracer};
 use crate::render::{Frame, FrameStats, RenderError, Settings, StageTimings};
@@ -57,10 +58,14 @@ type Seen<'a> = (&'a [u32], usize, usize);
 /// (the depth: the mean range over the covered part), and whether
 /// the pixel is exact: every fragment on a facet lit all over or facing away from the Sun,
 /// so that no edge of the light crosses it.
-fn shade_fragments(tracer: &Tracer, fragments: &[raster::Fragment]) -> (f64, f64, u8, bool) {
+fn shade_fragments(
+    tracer: &Tracer,
+    lights: Lights,
+    fragments: &[raster::Fragment],
+) -> (f64, f64, u8, bool) {
     let (mut sum, mut range, mut met, mut mask, mut exact) = (0.0, 0.0, 0.0, 0u8, true);
     for f in fragments {
-        let h = tracer.cast_onto(f.centroid.x, f.centroid.y, f.facet);
+        let h = cast_onto(tracer, lights, f.centroid.x, f.centroid.y, f.facet);
         if h.range_m.is_nan() {
             // The plane met behind the camera: not a tiling after all.
             mask |= MISS;
@@ -81,11 +86,29 @@ fn shade_fragments(tracer: &Tracer, fragments: &[raster::Fragment]) -> (f64, f64
     (sum, depth, mask, exact)
 }
 
+/// The large facets' interpolated light ([`FacetLights`]) and whether the frame keeps its
+/// depth (else a lit-all-over facet's sample casts nothing).
+#[derive(Clone, Copy)]
+struct Lights<'a> {
+    lights: Option<&'a FacetLights>,
+    depth: bool,
+}
+
+/// [`Tracer::cast_onto`], with the facet's light read from `lights` where it is interpolated.
+#[inline]
+fn cast_onto(tracer: &Tracer, lights: Lights, u: f64, v: f64, facet: u32) -> Hit {
+    match lights.lights.and_then(|l| l.at(facet, u, v)) {
+        Some(light) => tracer.cast_onto_with(u, v, facet, light, lights.depth),
+        None => tracer.cast_onto(u, v, facet),
+    }
+}
+
 /// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
 /// the rays that met the body [m] (NaN for none), the classes met, the rays cast. With
 /// `seen`, the first facet at each of its samples.
 fn cast_pixel(
     tracer: &Tracer,
+    lights: Lights,
     u0: f64,
     v0: f64,
     n: u32,
@@ -103,7 +126,7 @@ fn cast_pixel(
                     range_m: f64::NAN,
                 },
                 Some(raster::UNDECIDED) | None => tracer.cast(u, v),
-                Some(facet) => tracer.cast_onto(u, v, facet),
+                Some(facet) => cast_onto(tracer, lights, u, v, facet),
             };
             if h.range_m.is_nan() {
                 mask |= MISS;
@@ -150,6 +173,17 @@ pub fn render(
     // A mesh body alone through a pinhole: the first facet of every line of sight by
     // rasterisation, so that only shadow rays (and undecided samples) go through the BVH.
     let rasteriser = tracer.rasteriser(TILE);
+    // Large facets' light from a quadratic over their image.
+    let lights = match (&rasteriser, &scene.body.shape) {
+        (Some(r), crate::body::Shape::Mesh(m)) if settings.raycast_quadratic_light => {
+            FacetLights::new(&tracer, r, m.facets().len())
+        }
+        _ => None,
+    };
+    let lights = Lights {
+        lights: lights.as_ref(),
+        depth: settings.depth,
+    };
     let t_raster = t0.elapsed();
     // Tiles of TILE x TILE pixels some line of sight of which may meet a body's bounding
     // sphere: the others cast nothing.
@@ -173,7 +207,7 @@ pub fn render(
         .zip(exact.par_chunks_mut(TILE * w))
         .enumerate()
         .map_init(
-            || (Vec::new(), Vec::new(), Vec::new()),
+            || (Vec::new(), Vec::new(), raster::TileFragments::default()),
             |(facets, scratch, fragments), (band, (((pl, depth), class), exact))| {
                 let rows = pl.len() / w;
                 let mut rays = 0;
@@ -185,6 +219,9 @@ pub fn render(
                     let cols = TILE.min(w - u0);
                     let nn = n as usize;
                     let mut filled = false;
+                    if let Some(r) = &rasteriser {
+                        r.tile_fragments((u0, v0), (cols, rows), fragments);
+                    }
                     for j in 0..rows {
                         for i in u0..u0 + cols {
                             let p = j * w + i;
@@ -192,13 +229,16 @@ pub fn render(
                                 // One facet over every point of the pixel, or over every
                                 // point of the part the body covers (the limb): its
                                 // fragments.
-                                let area = r.fragments((i, v0 + j), fragments);
+                                let local = j * cols + (i - u0);
+                                let (fragments, area) =
+                                    (fragments.of(local), fragments.area(local));
                                 let tiled = (area - 1.0).abs() <= COVERED
                                     || (area < 1.0
                                         && !fragments.is_empty()
                                         && r.single_layer((i, v0 + j), fragments));
                                 if tiled {
-                                    let (v, d, mut c, e) = shade_fragments(&tracer, fragments);
+                                    let (v, d, mut c, e) =
+                                        shade_fragments(&tracer, lights, fragments);
                                     if area < 1.0 - COVERED {
                                         c |= MISS;
                                     }
@@ -215,7 +255,7 @@ pub fn render(
                                 (&facets[..], (j * nn) * cols * nn + (i - u0) * nn, cols * nn)
                             });
                             let (v, d, c, r) =
-                                cast_pixel(&tracer, i as f64, (v0 + j) as f64, n, seen);
+                                cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, seen);
                             (pl[p], depth[p], class[p]) = (v, d, c);
                             rays += r;
                         }
@@ -228,10 +268,15 @@ pub fn render(
     let t_first = t0.elapsed();
     // Pixels where the light changes: their own class or a neighbour's differs.
     let mixed = |p: usize| {
-        super::around(p, w, h)
-            .fold(0u8, |mask, q| mask | class[q])
-            .count_ones()
-            > 1
+        let (i, j) = (p % w, p / w);
+        let (x0, x1) = (i.saturating_sub(1), (i + 1).min(w - 1));
+        let mut mask = 0u8;
+        for y in j.saturating_sub(1)..=(j + 1).min(h - 1) {
+            mask = class[y * w + x0..=y * w + x1]
+                .iter()
+                .fold(mask, |m, &c| m | c);
+        }
+        mask.count_ones() > 1
     };
     let edge_n = settings.raycast_edge_samples.max(n);
     let edges: Vec<usize> = if edge_n > n {
@@ -267,7 +312,7 @@ pub fn render(
                     r.fill((i, j), (1, 1), nn, facets, scratch);
                 }
                 let seen = rasteriser.as_ref().map(|_| (&facets[..], 0, nn));
-                cast_pixel(&tracer, i as f64, j as f64, edge_n, seen)
+                cast_pixel(&tracer, lights, i as f64, j as f64, edge_n, seen)
             },
         )
         .collect();

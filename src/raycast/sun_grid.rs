@@ -168,7 +168,11 @@ impl SunGrid {
                     (x0..=x1).any(|x| {
                         bins.cell(x, y).iter().any(|&g| {
                             let b = &shadows_of[g as usize];
-                            g as usize != k
+                            // Each pair once: in the first cell both spans reach.
+                            let [[bx0, _], [by0, _]] = spans[g as usize];
+                            x == x0.max(bx0)
+                                && y == y0.max(by0)
+                                && g as usize != k
                                 && b.far > a.near + eps
                                 && b.lo.cmplt(a.hi - eps).all()
                                 && a.lo.cmplt(b.hi - eps).all()

@@ -133,6 +133,11 @@ pub struct Settings {
     pub raycast_samples: u32,
     /// Mesh bodies: rays per pixel side in pixels at the limb and at the edges of the light.
     pub raycast_edge_samples: u32,
+    /// Mesh bodies seen through a pinhole: a large facet's light read from a quadratic over its
+    /// image, fitted to nine evaluations, instead of evaluated at every sample
+    /// ([`crate::raycast::facet_light`]; kept per facet only where it reproduces the light to
+    /// 1e-7).
+    pub raycast_quadratic_light: bool,
     /// Mesh bodies: orders of light scattered between facets that enter the image (0: direct
     /// light only; [`crate::irradiance`]).
     pub scattering_orders: u32,
@@ -167,6 +172,7 @@ impl Default for Settings {
             map_filter: MapFilter::Area,
             raycast_samples: 1,
             raycast_edge_samples: 4,
+            raycast_quadratic_light: true,
             scattering_orders: 0,
         }
     }

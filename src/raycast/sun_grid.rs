@@ -42,6 +42,45 @@ struct SunFacing {
     hi: DVec2,
     near: f64,
     far: f64,
+    /// The unit normals of its projected edges (zero for an edge of no length) and the
+    /// projection's extent along each [m]: its side of every separating axis test.
+    axes: [DVec2; 3],
+    extent: [[f64; 2]; 3],
+}
+
+impl SunFacing {
+    fn new(facet: usize, corners: [DVec2; 3], near: f64, far: f64) -> SunFacing {
+        let axes = [0, 1, 2].map(|i| {
+            let e = corners[(i + 1) % 3] - corners[i];
+            DVec2::new(-e.y, e.x).normalize_or_zero()
+        });
+        SunFacing {
+            facet,
+            corners,
+            lo: corners[0].min(corners[1]).min(corners[2]),
+            hi: corners[0].max(corners[1]).max(corners[2]),
+            near,
+            far,
+            axes,
+            extent: axes.map(|n| interval(&corners, n)),
+        }
+    }
+
+    /// Whether the projections of `self` and `other` overlap by more than `eps` [m] (no edge
+    /// normal of either separates them).
+    #[inline]
+    fn overlaps(&self, other: &SunFacing, eps: f64) -> bool {
+        let apart = |[a0, a1]: [f64; 2], [b0, b1]: [f64; 2]| a1 <= b0 + eps || b1 <= a0 + eps;
+        !(0..3).any(|i| apart(self.extent[i], interval(&other.corners, self.axes[i])))
+            && !(0..3).any(|i| apart(interval(&self.corners, other.axes[i]), other.extent[i]))
+    }
+}
+
+/// The extent of the points `p` along the direction `n`.
+#[inline]
+fn interval(p: &[DVec2; 3], n: DVec2) -> [f64; 2] {
+    let (a, b, c) = (p[0].dot(n), p[1].dot(n), p[2].dot(n));
+    [a.min(b).min(c), a.max(b).max(c)]
 }
 
 /// The sun-facing facets of a mesh, binned across the Sun's direction.
@@ -97,14 +136,12 @@ impl SunGrid {
             tris.push([a, b - a, c - a]);
             boxes.push((lo, hi));
             let depth = [a, b, c].map(|x| x.dot(s0));
-            shadows_of.push(SunFacing {
-                facet: f,
-                corners: p,
-                lo: p[0].min(p[1]).min(p[2]),
-                hi: p[0].max(p[1]).max(p[2]),
-                near: depth[0].min(depth[1]).min(depth[2]),
-                far: depth[0].max(depth[1]).max(depth[2]),
-            });
+            shadows_of.push(SunFacing::new(
+                f,
+                p,
+                depth[0].min(depth[1]).min(depth[2]),
+                depth[0].max(depth[1]).max(depth[2]),
+            ));
         }
         if tris.is_empty() {
             return None;
@@ -139,26 +176,6 @@ impl SunGrid {
         // A facet is clear when no facet binned with it can lie sunward of it over its
         // projection. Separations are taken with a tolerance a billionth of the body's radius.
         let eps = 1e-9 * r;
-        let overlap = |a: &[DVec2; 3], b: &[DVec2; 3]| {
-            let separated_along = |n: DVec2| {
-                let pa = a.map(|x| x.dot(n));
-                let pb = b.map(|x| x.dot(n));
-                let (amin, amax) = (pa[0].min(pa[1]).min(pa[2]), pa[0].max(pa[1]).max(pa[2]));
-                let (bmin, bmax) = (pb[0].min(pb[1]).min(pb[2]), pb[0].max(pb[1]).max(pb[2]));
-                let scale = n.length();
-                amax <= bmin + eps * scale || bmax <= amin + eps * scale
-            };
-            let normals = |t: &[DVec2; 3]| {
-                [0, 1, 2].map(|i| {
-                    let e = t[(i + 1) % 3] - t[i];
-                    DVec2::new(-e.y, e.x)
-                })
-            };
-            !normals(a)
-                .into_iter()
-                .chain(normals(b))
-                .any(separated_along)
-        };
         let blocked: Vec<bool> = shadows_of
             .par_iter()
             .enumerate()
@@ -176,7 +193,7 @@ impl SunGrid {
                                 && b.far > a.near + eps
                                 && b.lo.cmplt(a.hi - eps).all()
                                 && a.lo.cmplt(b.hi - eps).all()
-                                && overlap(&a.corners, &b.corners)
+                                && a.overlaps(b, eps)
                         })
                     })
                 })

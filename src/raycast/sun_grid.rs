@@ -161,7 +161,8 @@ impl SunGrid {
             ((extent.y / cell_m).ceil() as usize).clamp(1, 4096),
         ];
         let cell_m = (extent.x / cells[0] as f64).max(extent.y / cells[1] as f64);
-        let index = |x: f64, n: usize| (((x / cell_m).floor().max(0.0)) as usize).min(n - 1);
+        // Truncation is the floor here (negative values clamp to 0): no libm call.
+        let index = |x: f64, n: usize| ((x / cell_m).max(0.0) as usize).min(n - 1);
         let spans: Vec<[[usize; 2]; 2]> = boxes
             .iter()
             .map(|&(lo_b, hi_b)| {
@@ -227,8 +228,9 @@ impl SunGrid {
     #[inline]
     pub fn occluded(&self, origin_m: DVec3, dir: DVec3) -> bool {
         let q = DVec2::new(origin_m.dot(self.e1), origin_m.dot(self.e2)) - self.lo;
-        let (x, y) = ((q.x / self.cell_m).floor(), (q.y / self.cell_m).floor());
-        if x < 0.0 || y < 0.0 || x >= self.cells[0] as f64 || y >= self.cells[1] as f64 {
+        let (x, y) = (q.x / self.cell_m, q.y / self.cell_m);
+        // (Truncation is the floor of these non-negative values, without a libm call.)
+        if !(x >= 0.0 && y >= 0.0 && x < self.cells[0] as f64 && y < self.cells[1] as f64) {
             return false;
         }
         self.bins.cell(x as usize, y as usize).iter().any(|&k| {

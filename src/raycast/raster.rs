@@ -20,6 +20,7 @@ use super::bins::Bins;
 use crate::body::mesh::Mesh;
 use crate::camera::Intrinsics;
 use glam::{DMat3, DVec2, DVec3};
+use rayon::prelude::*;
 
 /// A pixel's fragments cover it when their areas add up to 1 px^2 within this much.
 pub const COVERED: f64 = 1e-9;
@@ -266,36 +267,39 @@ impl Rasteriser {
         let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
         // A vertex in front by less than a millionth of the mesh's size reaches the plane.
         let near = 1e-6 * mesh.bounding_radius_m();
-        let mut image = Vec::with_capacity(mesh.vertices_m().len());
-        for &v in mesh.vertices_m() {
-            let c = camera_from_body * (v - camera_m);
-            if c.z <= near {
-                return None;
-            }
-            image.push((DVec2::from(intrinsics.project(c.x, c.y, c.z)), 1.0 / c.z));
-        }
+        // Vertices, then facets, projected in parallel (the order kept: facets stay in mesh
+        // order in the bins).
+        let image: Vec<(DVec2, f64)> = mesh
+            .vertices_m()
+            .par_iter()
+            .map(|&v| {
+                let c = camera_from_body * (v - camera_m);
+                (c.z > near).then(|| (DVec2::from(intrinsics.project(c.x, c.y, c.z)), 1.0 / c.z))
+            })
+            .collect::<Option<_>>()?;
         let tiles = [w.div_ceil(tile), h.div_ceil(tile)];
-        let mut projected = Vec::with_capacity(mesh.facets().len());
-        let mut spans = Vec::with_capacity(mesh.facets().len());
         // A closed surface seen from outside shows only the fronts of its facets.
         let cull = mesh.report().open_edges == 0;
-        for (f, tri) in mesh.facets().iter().enumerate() {
-            let p = tri.map(|k| image[k as usize].0);
-            let inv_z = tri.map(|k| image[k as usize].1);
-            let Some(t) = Projected::new(f as u32, p, *tri, inv_z, cull) else {
-                continue;
-            };
-            let (lo, hi) = (t.lo, t.hi);
-            if !(hi.x > 0.0 && hi.y > 0.0 && lo.x < w as f64 && lo.y < h as f64) {
-                continue;
-            }
-            let tile_of = |x: f64, end: usize| ((x.max(0.0) as usize) / tile).min(end - 1);
-            spans.push([
-                [tile_of(lo.x, tiles[0]), tile_of(hi.x, tiles[0])],
-                [tile_of(lo.y, tiles[1]), tile_of(hi.y, tiles[1])],
-            ]);
-            projected.push(t);
-        }
+        let tile_of = |x: f64, end: usize| ((x.max(0.0) as usize) / tile).min(end - 1);
+        let (projected, spans): (Vec<Projected>, Vec<[[usize; 2]; 2]>) = mesh
+            .facets()
+            .par_iter()
+            .enumerate()
+            .filter_map(|(f, tri)| {
+                let p = tri.map(|k| image[k as usize].0);
+                let inv_z = tri.map(|k| image[k as usize].1);
+                let t = Projected::new(f as u32, p, *tri, inv_z, cull)?;
+                let (lo, hi) = (t.lo, t.hi);
+                if !(hi.x > 0.0 && hi.y > 0.0 && lo.x < w as f64 && lo.y < h as f64) {
+                    return None;
+                }
+                let span = [
+                    [tile_of(lo.x, tiles[0]), tile_of(hi.x, tiles[0])],
+                    [tile_of(lo.y, tiles[1]), tile_of(hi.y, tiles[1])],
+                ];
+                Some((t, span))
+            })
+            .unzip();
         Some(Rasteriser {
             projected,
             bins: Bins::new(tiles, &spans),

@@ -48,6 +48,22 @@ impl Scene {
         self.camera.detector.image(pl, size, &factors, frame_id)
     }
 
+    /// The DN alone of [`Scene::record`], bit for bit the same
+    /// ([`crate::detector::Detector::dn_into`]: no signal planes where no PSF needs them).
+    pub fn record_dn<'a>(
+        &self,
+        pl: impl Fn(usize) -> &'a [f64] + Sync,
+        size: (usize, usize),
+        frame_id: u64,
+    ) -> Vec<u16> {
+        let factors = self.band_factors();
+        let (mut signal, mut dn) = (Vec::new(), Vec::new());
+        self.camera
+            .detector
+            .dn_into(pl, size, &factors, frame_id, &mut signal, &mut dn);
+        dn
+    }
+
     /// The first band's factor ([`Scene::band_factors`]): a monochrome camera's.
     pub fn signal_factor(&self) -> f64 {
         let b = self.camera.detector.band();

@@ -93,7 +93,7 @@ pub fn run(
         let td = Instant::now();
         let size = (frame.width, frame.height);
         let band = |b| frame.band(b);
-        det.image_into(band, size, &factors, pose.frame_id, &mut signal, &mut dn);
+        det.dn_into(band, size, &factors, pose.frame_id, &mut signal, &mut dn);
         let detector_ms = td.elapsed().as_secs_f64() * 1e3;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if let serde_json::Value::Object(o) =

@@ -236,6 +236,45 @@ impl Detector {
         self.expose_bands(signal, size, frame_id, dn);
     }
 
+    /// The DN alone of [`Detector::image_into`] (what the SurRender and CORTO endpoints and
+    /// the bench hand out), bit for bit the same: where no band's PSF blurs its image, each
+    /// pixel is exposed straight from `pl(b)[i] * factors[b]`, its band's for a Bayer mosaic,
+    /// without the signal planes in between (for three bands behind a mosaic, two planes of
+    /// 8 bytes a pixel not written); otherwise through the signal planes, in `signal`.
+    pub fn dn_into<'a>(
+        &self,
+        pl: impl Fn(usize) -> &'a [f64] + Sync,
+        size: (usize, usize),
+        factors: &[f64],
+        frame_id: u64,
+        signal: &mut Vec<f64>,
+        dn: &mut Vec<u16>,
+    ) {
+        if (0..self.bands.len()).any(|b| self.band_psf_sigma_px(b) > 0.0) {
+            return self.image_into(pl, size, factors, frame_id, signal, dn);
+        }
+        let n = size.0 * size.1;
+        dn.clear();
+        dn.resize(n * self.dn_planes(), 0);
+        match self.layout {
+            Layout::Planes => {
+                for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
+                    let (plane, k) = (pl(b), factors[b]);
+                    self.expose_pixels(|i| plane[i] * k, frame_id, b as u64, out);
+                }
+            }
+            Layout::Bayer(order) => {
+                let w = size.0.max(1);
+                let planes: Vec<&[f64]> = (0..self.bands.len()).map(&pl).collect();
+                let mosaic = |i: usize| {
+                    let b = order.band_at(i % w, i / w);
+                    planes[b][i] * factors[b]
+                };
+                self.expose_pixels(mosaic, frame_id, 0, dn);
+            }
+        }
+    }
+
     /// The DN the camera hands out for every band's signal (`bands x height x width`, band
     /// after band) [e-/s]: one image per band, each blurred by its band's PSF, its noises from
     /// streams of its own; or the Bayer mosaic, each pixel its band's.
@@ -610,5 +649,65 @@ mod tests {
             histogram(&table)[8] > n / 2,
             "most dark pixels at the offset"
         );
+    }
+
+    /// The DN alone ([`Detector::dn_into`]) are the DN of the signal planes' path
+    /// ([`Detector::image_into`]), bit for bit, noises on: one band, three full images, every
+    /// Bayer order, and a PSF (which takes the planes' path).
+    #[test]
+    fn the_dn_alone_are_the_images_dn() {
+        let noisy = det(Noise {
+            shot: Some(noise::Shot),
+            readout: Some(noise::Readout { sigma_e: 3.0 }),
+            ..Default::default()
+        });
+        let band = |name: &str| Band {
+            name: name.into(),
+            ..noisy.bands[0].clone()
+        };
+        let three = Detector {
+            bands: vec![band("R"), band("G"), band("B")],
+            ..noisy.clone()
+        };
+        let (w, h) = (96, 64);
+        // Each band its own image: a ramp, a dark half and another ramp.
+        let planes: Vec<Vec<f64>> = (0..3)
+            .map(|b| {
+                (0..w * h)
+                    .map(|i| {
+                        if b == 1 && i % w < w / 2 {
+                            0.0
+                        } else {
+                            1e3 * (i % 97 + b) as f64
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let factors = [2.0e3, 1.5e3, 0.7e3];
+        let mut cameras = vec![noisy.clone(), three.clone()];
+        cameras.extend(Bayer::ALL.map(|o| Detector {
+            layout: Layout::Bayer(o),
+            ..three.clone()
+        }));
+        cameras.push(Detector {
+            psf_sigma_px: 0.8,
+            ..three.clone()
+        });
+        for d in cameras {
+            let k = &factors[..d.bands.len()];
+            let (mut signal, mut via_planes, mut alone) = (Vec::new(), Vec::new(), Vec::new());
+            d.image_into(
+                |b| &planes[b][..],
+                (w, h),
+                k,
+                5,
+                &mut signal,
+                &mut via_planes,
+            );
+            d.dn_into(|b| &planes[b][..], (w, h), k, 5, &mut signal, &mut alone);
+            assert_eq!(alone, via_planes, "{:?} {}", d.layout, d.bands.len());
+            assert!(alone.iter().any(|&x| x > 100));
+        }
     }
 }

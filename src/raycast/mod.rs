@@ -405,7 +405,7 @@ impl<'a> Tracer<'a> {
 
     /// The light of the first body's mesh facet `facet` where the line of sight through pixel
     /// position `(u, v)` meets its plane, as if nothing hid the Sun: `(direct, scattered)`
-    /// `(P/L)` per px^2 ([`Tracer::first_body_light`]); `None` where the plane is not met in
+    /// `(P/L)` per px^2 (`Tracer::first_body_light`); `None` where the plane is not met in
     /// front. What [`facet_light`] interpolates.
     pub fn facet_light(&self, u: f64, v: f64, facet: u32) -> Option<(f64, f64)> {
         let (dir, cos_eps, solid, t) = self.onto_facet(u, v, facet)?;

@@ -198,7 +198,7 @@ pub fn image_png(
     }
     let i = &config.scene.camera.intrinsics;
     let (w, h) = (i.width_px as usize, i.height_px as usize);
-    let (_, dn) = config.scene.record(|_| pl, (w, h), pose.frame_id);
+    let dn = config.scene.record_dn(|_| pl, (w, h), pose.frame_id);
     // A colour camera's planes as RGB, or its mosaic with its pattern, as image.png.
     let text = crate::app::products::png_text(det);
     crate::io::encode_png_planes(w, h, &dn, det.saved_bits, &text).map_err(|e| e.to_string())

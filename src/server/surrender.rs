@@ -691,9 +691,9 @@ impl Session {
         let dn8 = || -> Result<Vec<u8>, String> {
             let c = self.last_config.as_ref().ok_or("no image rendered yet")?;
             let det = &c.scene.camera.detector;
-            let (_, dn) = c
+            let dn = c
                 .scene
-                .record(|_| &r.pl_scaled[..], (w, h), c.pose.frame_id);
+                .record_dn(|_| &r.pl_scaled[..], (w, h), c.pose.frame_id);
             let shift = det.saved_bits.saturating_sub(8);
             Ok(dn.iter().map(|&d| (d >> shift).min(255) as u8).collect())
         };

@@ -120,30 +120,30 @@ impl SunGrid {
         // Per sun-facing facet (in parallel, in facet order): a vertex and two edges, its
         // padded box across s0, and its projection and extent along s0 [m].
         let facing = -spread.sin();
-        let (tris, (boxes, shadows_of)): (Vec<[DVec3; 3]>, (Vec<(DVec2, DVec2)>, Vec<SunFacing>)) =
-            mesh.facets()
-                .par_iter()
-                .enumerate()
-                .filter_map(|(f, tri)| {
-                    // Facing the Sun from some point of the body (a facet edge-on to s0 may
-                    // face the Sun seen from elsewhere).
-                    if mesh.normals()[f].dot(s0) < facing {
-                        return None;
-                    }
-                    let [a, b, c] = tri.map(|k| v[k as usize]);
-                    let p = [a, b, c].map(|x| DVec2::new(x.dot(e1), x.dot(e2)));
-                    let lo = p[0].min(p[1]).min(p[2]) - DVec2::splat(pad);
-                    let hi = p[0].max(p[1]).max(p[2]) + DVec2::splat(pad);
-                    let depth = [a, b, c].map(|x| x.dot(s0));
-                    let facing = SunFacing::new(
-                        f,
-                        p,
-                        depth[0].min(depth[1]).min(depth[2]),
-                        depth[0].max(depth[1]).max(depth[2]),
-                    );
-                    Some(([a, b - a, c - a], ((lo, hi), facing)))
-                })
-                .unzip();
+        let (tris, (boxes, shadows_of)): (Vec<_>, (Vec<_>, Vec<_>)) = mesh
+            .facets()
+            .par_iter()
+            .enumerate()
+            .filter_map(|(f, tri)| {
+                // Facing the Sun from some point of the body (a facet edge-on to s0 may
+                // face the Sun seen from elsewhere).
+                if mesh.normals()[f].dot(s0) < facing {
+                    return None;
+                }
+                let [a, b, c] = tri.map(|k| v[k as usize]);
+                let p = [a, b, c].map(|x| DVec2::new(x.dot(e1), x.dot(e2)));
+                let lo = p[0].min(p[1]).min(p[2]) - DVec2::splat(pad);
+                let hi = p[0].max(p[1]).max(p[2]) + DVec2::splat(pad);
+                let depth = [a, b, c].map(|x| x.dot(s0));
+                let facing = SunFacing::new(
+                    f,
+                    p,
+                    depth[0].min(depth[1]).min(depth[2]),
+                    depth[0].max(depth[1]).max(depth[2]),
+                );
+                Some(([a, b - a, c - a], ((lo, hi), facing)))
+            })
+            .unzip();
         if tris.is_empty() {
             return None;
         }

@@ -49,7 +49,7 @@ impl Scene {
     }
 
     /// The DN alone of [`Scene::record`], bit for bit the same
-    /// ([`crate::detector::Detector::dn_into`]: no signal planes where no PSF needs them).
+    /// ([`crate::detector::Detector::dn_into`]: no signal planes but those a PSF blurs).
     pub fn record_dn<'a>(
         &self,
         pl: impl Fn(usize) -> &'a [f64] + Sync,
@@ -57,10 +57,10 @@ impl Scene {
         frame_id: u64,
     ) -> Vec<u16> {
         let factors = self.band_factors();
-        let (mut signal, mut dn) = (Vec::new(), Vec::new());
+        let mut dn = Vec::new();
         self.camera
             .detector
-            .dn_into(pl, size, &factors, frame_id, &mut signal, &mut dn);
+            .dn_into(pl, size, &factors, frame_id, &mut dn);
         dn
     }
 

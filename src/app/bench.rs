@@ -81,7 +81,7 @@ pub fn run(
     let det = &config.scene.camera.detector;
     // Every band's factor of Eq. 45, once: the bands cost a multiplication and an exposure.
     let factors = config.scene.band_factors();
-    let (mut signal, mut dn) = (Vec::new(), Vec::new());
+    let mut dn = Vec::new();
     let (mut times, mut points) = (Vec::with_capacity(n), Vec::with_capacity(n));
     let mut surface_samples_total = 0;
     let mut stage_sum = serde_json::Map::new();
@@ -93,7 +93,7 @@ pub fn run(
         let td = Instant::now();
         let size = (frame.width, frame.height);
         let band = |b| frame.band(b);
-        det.dn_into(band, size, &factors, pose.frame_id, &mut signal, &mut dn);
+        det.dn_into(band, size, &factors, pose.frame_id, &mut dn);
         let detector_ms = td.elapsed().as_secs_f64() * 1e3;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if let serde_json::Value::Object(o) =

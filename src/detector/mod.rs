@@ -237,42 +237,20 @@ impl Detector {
     }
 
     /// The DN alone of [`Detector::image_into`] (what the SurRender and CORTO endpoints and
-    /// the bench hand out), bit for bit the same: where no band's PSF blurs its image, each
-    /// pixel is exposed straight from `pl(b)[i] * factors[b]`, its band's for a Bayer mosaic,
-    /// without the signal planes in between (for three bands behind a mosaic, two planes of
-    /// 8 bytes a pixel not written); otherwise through the signal planes, in `signal`.
+    /// the bench hand out), bit for bit the same, without the signal planes in between: each
+    /// pixel is exposed straight from `pl(b)[i] * factors[b]`, its band's for a Bayer mosaic
+    /// (for three bands behind a mosaic, three planes of 8 bytes a pixel not written), and
+    /// only a band its PSF blurs makes its plane.
     pub fn dn_into<'a>(
         &self,
         pl: impl Fn(usize) -> &'a [f64] + Sync,
         size: (usize, usize),
         factors: &[f64],
         frame_id: u64,
-        signal: &mut Vec<f64>,
         dn: &mut Vec<u16>,
     ) {
-        if (0..self.bands.len()).any(|b| self.band_psf_sigma_px(b) > 0.0) {
-            return self.image_into(pl, size, factors, frame_id, signal, dn);
-        }
-        let n = size.0 * size.1;
-        dn.clear();
-        dn.resize(n * self.dn_planes(), 0);
-        match self.layout {
-            Layout::Planes => {
-                for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
-                    let (plane, k) = (pl(b), factors[b]);
-                    self.expose_pixels(|i| plane[i] * k, frame_id, b as u64, out);
-                }
-            }
-            Layout::Bayer(order) => {
-                let w = size.0.max(1);
-                let planes: Vec<&[f64]> = (0..self.bands.len()).map(&pl).collect();
-                let mosaic = |i: usize| {
-                    let b = order.band_at(i % w, i / w);
-                    planes[b][i] * factors[b]
-                };
-                self.expose_pixels(mosaic, frame_id, 0, dn);
-            }
-        }
+        let planes: Vec<&[f64]> = (0..self.bands.len()).map(pl).collect();
+        self.expose_from(|b, i| planes[b][i] * factors[b], size, frame_id, dn);
     }
 
     /// The DN the camera hands out for every band's signal (`bands x height x width`, band
@@ -286,32 +264,47 @@ impl Detector {
         dn: &mut Vec<u16>,
     ) {
         let n = size.0 * size.1;
+        self.expose_from(|b, i| signal[b * n + i], size, frame_id, dn);
+    }
+
+    /// [`Detector::expose_bands`] of the signal `value(b, i)` [e-/s] of band `b` at pixel `i`,
+    /// read where it is needed: a band its PSF blurs is made into a plane and blurred, the
+    /// others are read pixel by pixel.
+    fn expose_from(
+        &self,
+        value: impl Fn(usize, usize) -> f64 + Sync,
+        size: (usize, usize),
+        frame_id: u64,
+        dn: &mut Vec<u16>,
+    ) {
+        let n = size.0 * size.1;
         dn.clear();
         dn.resize(n * self.dn_planes(), 0);
+        // Band `b`'s image blurred by its own optics, or `None` where no PSF blurs it.
+        let blurred = |b: usize| {
+            let sigma = self.band_psf_sigma_px(b);
+            (sigma > 0.0).then(|| {
+                let plane: Vec<f64> = (0..n).into_par_iter().map(|i| value(b, i)).collect();
+                psf::gaussian_blur(&plane, size.0, size.1, sigma, psf::radius(sigma))
+            })
+        };
         match self.layout {
             Layout::Planes => {
                 for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
-                    let sigma = self.band_psf_sigma_px(b);
-                    let s = &signal[b * n..(b + 1) * n];
-                    self.expose_into(s, size, frame_id, sigma, b as u64, out);
+                    match blurred(b) {
+                        Some(p) => self.expose_pixels(|i| p[i], frame_id, b as u64, out),
+                        None => self.expose_pixels(|i| value(b, i), frame_id, b as u64, out),
+                    }
                 }
             }
             Layout::Bayer(order) => {
                 // Each band blurred by its own optics, then each pixel keeps its filter's.
-                let blurred: Vec<std::borrow::Cow<[f64]>> = (0..self.bands.len())
-                    .map(|b| {
-                        let s = &signal[b * n..(b + 1) * n];
-                        let sigma = self.band_psf_sigma_px(b);
-                        if sigma > 0.0 {
-                            let r = psf::radius(sigma);
-                            psf::gaussian_blur(s, size.0, size.1, sigma, r).into()
-                        } else {
-                            s.into()
-                        }
-                    })
-                    .collect();
+                let blurred: Vec<Option<Vec<f64>>> = (0..self.bands.len()).map(blurred).collect();
                 let w = size.0.max(1);
-                let mosaic = |i: usize| blurred[order.band_at(i % w, i / w)][i];
+                let mosaic = |i: usize| {
+                    let b = order.band_at(i % w, i / w);
+                    blurred[b].as_ref().map_or_else(|| value(b, i), |p| p[i])
+                };
                 self.expose_pixels(mosaic, frame_id, 0, dn);
             }
         }
@@ -653,7 +646,7 @@ mod tests {
 
     /// The DN alone ([`Detector::dn_into`]) are the DN of the signal planes' path
     /// ([`Detector::image_into`]), bit for bit, noises on: one band, three full images, every
-    /// Bayer order, and a PSF (which takes the planes' path).
+    /// Bayer order, and a PSF on the full images and on the mosaic.
     #[test]
     fn the_dn_alone_are_the_images_dn() {
         let noisy = det(Noise {
@@ -690,10 +683,13 @@ mod tests {
             layout: Layout::Bayer(o),
             ..three.clone()
         }));
-        cameras.push(Detector {
-            psf_sigma_px: 0.8,
-            ..three.clone()
-        });
+        for layout in [Layout::Planes, Layout::Bayer(Bayer::Grbg)] {
+            cameras.push(Detector {
+                psf_sigma_px: 0.8,
+                layout,
+                ..three.clone()
+            });
+        }
         for d in cameras {
             let k = &factors[..d.bands.len()];
             let (mut signal, mut via_planes, mut alone) = (Vec::new(), Vec::new(), Vec::new());
@@ -705,7 +701,7 @@ mod tests {
                 &mut signal,
                 &mut via_planes,
             );
-            d.dn_into(|b| &planes[b][..], (w, h), k, 5, &mut signal, &mut alone);
+            d.dn_into(|b| &planes[b][..], (w, h), k, 5, &mut alone);
             assert_eq!(alone, via_planes, "{:?} {}", d.layout, d.bands.len());
             assert!(alone.iter().any(|&x| x > 100));
         }

@@ -31,7 +31,7 @@ use super::Tracer;
 use super::raster::Rasteriser;
 use rayon::prelude::*;
 
-/// The smallest image of a facet [px^2] whose light is interpolated: below, its nine
+/// The smallest image of a facet [px^2] whose light is interpolated: below, its eight
 /// evaluations cost more than the samples it saves.
 pub const MIN_AREA_PX2: f64 = 8.0;
 

@@ -386,18 +386,10 @@ impl Rasteriser {
             tile.starts[p] += tile.starts[p - 1];
         }
         tile.sorted.clear();
-        tile.sorted.resize(
-            tile.unsorted.len(),
-            tile.unsorted.first().map_or(
-                Fragment {
-                    facet: 0,
-                    projected: 0,
-                    area_px2: 0.0,
-                    centroid: DVec2::ZERO,
-                },
-                |u| u.1,
-            ),
-        );
+        if let Some(&(_, any)) = tile.unsorted.first() {
+            // Every slot is written below; `any` only fills them first.
+            tile.sorted.resize(tile.unsorted.len(), any);
+        }
         tile.next.clear();
         tile.next.extend_from_slice(&tile.starts[..cols * rows]);
         for &(p, f) in &tile.unsorted {

@@ -134,9 +134,10 @@ pub struct Settings {
     /// Mesh bodies: rays per pixel side in pixels at the limb and at the edges of the light.
     pub raycast_edge_samples: u32,
     /// Mesh bodies seen through a pinhole: a large facet's light read from a quadratic over its
-    /// image, fitted to nine evaluations, instead of evaluated at every sample
+    /// image, through six evaluations and checked at two more, instead of evaluated at every
+    /// sample
     /// ([`crate::raycast::facet_light`]; kept per facet only where it reproduces the light to
-    /// 1e-7).
+    /// 1e-6 of the facet's brightest at the check points).
     pub raycast_quadratic_light: bool,
     /// Mesh bodies: orders of light scattered between facets that enter the image (0: direct
     /// light only; [`crate::irradiance`]).

@@ -249,8 +249,7 @@ impl Detector {
         frame_id: u64,
         dn: &mut Vec<u16>,
     ) {
-        let planes: Vec<&[f64]> = (0..self.bands.len()).map(pl).collect();
-        self.expose_from(|b, i| planes[b][i] * factors[b], size, frame_id, dn);
+        self.expose_from(|b| (pl(b), factors[b]), size, frame_id, dn);
     }
 
     /// The DN the camera hands out for every band's signal (`bands x height x width`, band
@@ -264,15 +263,16 @@ impl Detector {
         dn: &mut Vec<u16>,
     ) {
         let n = size.0 * size.1;
-        self.expose_from(|b, i| signal[b * n + i], size, frame_id, dn);
+        // (Times 1: exact, the same bits.)
+        self.expose_from(|b| (&signal[b * n..(b + 1) * n], 1.0), size, frame_id, dn);
     }
 
-    /// [`Detector::expose_bands`] of the signal `value(b, i)` [e-/s] of band `b` at pixel `i`,
-    /// read where it is needed: a band its PSF blurs is made into a plane and blurred, the
-    /// others are read pixel by pixel.
-    fn expose_from(
+    /// [`Detector::expose_bands`] of the signal `band(b).0[i] * band(b).1` [e-/s] of band `b`
+    /// at pixel `i`, read where it is needed: a band its PSF blurs is made into a plane and
+    /// blurred, the others are read pixel by pixel.
+    fn expose_from<'a>(
         &self,
-        value: impl Fn(usize, usize) -> f64 + Sync,
+        band: impl Fn(usize) -> (&'a [f64], f64),
         size: (usize, usize),
         frame_id: u64,
         dn: &mut Vec<u16>,
@@ -280,30 +280,35 @@ impl Detector {
         let n = size.0 * size.1;
         dn.clear();
         dn.resize(n * self.dn_planes(), 0);
-        // Band `b`'s image blurred by its own optics, or `None` where no PSF blurs it.
-        let blurred = |b: usize| {
+        // Band `b`'s image blurred by its own optics (then read times 1), or read as it is.
+        let source = |b: usize| -> (std::borrow::Cow<'a, [f64]>, f64) {
+            let (plane, k) = band(b);
             let sigma = self.band_psf_sigma_px(b);
-            (sigma > 0.0).then(|| {
-                let plane: Vec<f64> = (0..n).into_par_iter().map(|i| value(b, i)).collect();
-                psf::gaussian_blur(&plane, size.0, size.1, sigma, psf::radius(sigma))
-            })
+            if sigma > 0.0 {
+                let signal: Vec<f64> = plane.par_iter().map(|&x| x * k).collect();
+                let r = psf::radius(sigma);
+                (
+                    psf::gaussian_blur(&signal, size.0, size.1, sigma, r).into(),
+                    1.0,
+                )
+            } else {
+                (plane.into(), k)
+            }
         };
         match self.layout {
             Layout::Planes => {
                 for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
-                    match blurred(b) {
-                        Some(p) => self.expose_pixels(|i| p[i], frame_id, b as u64, out),
-                        None => self.expose_pixels(|i| value(b, i), frame_id, b as u64, out),
-                    }
+                    let (s, k) = source(b);
+                    self.expose_pixels(|i| s[i] * k, frame_id, b as u64, out);
                 }
             }
             Layout::Bayer(order) => {
                 // Each band blurred by its own optics, then each pixel keeps its filter's.
-                let blurred: Vec<Option<Vec<f64>>> = (0..self.bands.len()).map(blurred).collect();
+                let sources: Vec<_> = (0..self.bands.len()).map(source).collect();
                 let w = size.0.max(1);
                 let mosaic = |i: usize| {
-                    let b = order.band_at(i % w, i / w);
-                    blurred[b].as_ref().map_or_else(|| value(b, i), |p| p[i])
+                    let (s, k) = &sources[order.band_at(i % w, i / w)];
+                    s[i] * k
                 };
                 self.expose_pixels(mosaic, frame_id, 0, dn);
             }

@@ -269,7 +269,7 @@ impl Detector {
 
     /// [`Detector::expose_bands`] of the signal `band(b).0[i] * band(b).1` [e-/s] of band `b`
     /// at pixel `i`, read where it is needed: a band its PSF blurs is made into a plane and
-    /// blurred, the others are read pixel by pixel.
+    /// blurred ([`source`]), the others are read pixel by pixel.
     fn expose_from<'a>(
         &self,
         band: impl Fn(usize) -> (&'a [f64], f64),
@@ -280,31 +280,19 @@ impl Detector {
         let n = size.0 * size.1;
         dn.clear();
         dn.resize(n * self.dn_planes(), 0);
-        // Band `b`'s image blurred by its own optics (then read times 1), or read as it is.
-        let source = |b: usize| -> (std::borrow::Cow<'a, [f64]>, f64) {
-            let (plane, k) = band(b);
-            let sigma = self.band_psf_sigma_px(b);
-            if sigma > 0.0 {
-                let signal: Vec<f64> = plane.par_iter().map(|&x| x * k).collect();
-                let r = psf::radius(sigma);
-                (
-                    psf::gaussian_blur(&signal, size.0, size.1, sigma, r).into(),
-                    1.0,
-                )
-            } else {
-                (plane.into(), k)
-            }
-        };
         match self.layout {
             Layout::Planes => {
                 for (b, out) in dn.chunks_mut(n.max(1)).enumerate() {
-                    let (s, k) = source(b);
-                    self.expose_pixels(|i| s[i] * k, frame_id, b as u64, out);
+                    let (plane, k) = band(b);
+                    let sigma = self.band_psf_sigma_px(b);
+                    self.expose_into((plane, k), size, frame_id, sigma, b as u64, out);
                 }
             }
             Layout::Bayer(order) => {
                 // Each band blurred by its own optics, then each pixel keeps its filter's.
-                let sources: Vec<_> = (0..self.bands.len()).map(source).collect();
+                let sources: Vec<_> = (0..self.bands.len())
+                    .map(|b| source(band(b), size, self.band_psf_sigma_px(b)))
+                    .collect();
                 let w = size.0.max(1);
                 let mosaic = |i: usize| {
                     let (s, k) = &sources[order.band_at(i % w, i / w)];
@@ -343,28 +331,25 @@ impl Detector {
         dn_out.clear();
         dn_out.resize(signal_e_per_s.len(), 0);
         let sigma = self.psf_sigma_px;
-        self.expose_into(signal_e_per_s, size, frame_id, sigma, 0, dn_out);
+        // (Times 1: exact, the same bits.)
+        self.expose_into((signal_e_per_s, 1.0), size, frame_id, sigma, 0, dn_out);
     }
 
-    /// [`Detector::expose`] of one image into a slice of the image's size: blurred by
-    /// `psf_sigma_px`, its noises drawn from streams of its own (`plane`; plane 0's are a
-    /// monochrome camera's), so that a multi-band camera's bands have independent noises.
+    /// [`Detector::expose`] of one image, `plane[i] * k` [e-/s], into a slice of the image's
+    /// size: blurred by `psf_sigma_px` ([`source`]), its noises drawn from streams of its own
+    /// (`plane_id`; plane 0's are a monochrome camera's), so that a multi-band camera's bands
+    /// have independent noises.
     fn expose_into(
         &self,
-        signal_e_per_s: &[f64],
+        (plane, k): (&[f64], f64),
         size: (usize, usize),
         frame_id: u64,
         psf_sigma_px: f64,
-        plane: u64,
+        plane_id: u64,
         dn_out: &mut [u16],
     ) {
-        if psf_sigma_px > 0.0 {
-            let s = psf_sigma_px;
-            let blurred = psf::gaussian_blur(signal_e_per_s, size.0, size.1, s, psf::radius(s));
-            self.expose_pixels(|i| blurred[i], frame_id, plane, dn_out);
-        } else {
-            self.expose_pixels(|i| signal_e_per_s[i], frame_id, plane, dn_out);
-        }
+        let (s, k) = source((plane, k), size, psf_sigma_px);
+        self.expose_pixels(|i| s[i] * k, frame_id, plane_id, dn_out);
     }
 
     /// The exposure of every pixel `i` of `dn_out`, of signal `signal(i)` [e-/s] (a Bayer
@@ -503,6 +488,27 @@ impl DarkDn {
         let k = self.below.iter().position(|&b| u < b);
         self.values[k.unwrap_or(self.values.len() - 1)]
     }
+}
+
+/// An image `plane[i] * k` [e-/s] as the pixels read it: blurred by a PSF of `sigma` [px]
+/// (the plane times `k` first, unless `k` is 1; then read times 1), or the plane as it is with
+/// its factor.
+fn source(
+    (plane, k): (&[f64], f64),
+    size: (usize, usize),
+    sigma: f64,
+) -> (std::borrow::Cow<'_, [f64]>, f64) {
+    if sigma <= 0.0 {
+        return (plane.into(), k);
+    }
+    let r = psf::radius(sigma);
+    let blurred = if k == 1.0 {
+        psf::gaussian_blur(plane, size.0, size.1, sigma, r)
+    } else {
+        let signal: Vec<f64> = plane.par_iter().map(|&x| x * k).collect();
+        psf::gaussian_blur(&signal, size.0, size.1, sigma, r)
+    };
+    (blurred.into(), 1.0)
 }
 
 #[cfg(test)]

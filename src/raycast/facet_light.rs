@@ -159,13 +159,4 @@ impl FacetLights {
         let k = *self.slot.get(facet as usize)?;
         (k != u32::MAX).then(|| self.elements[k as usize].at(u, v))
     }
-
-    /// How many facets are interpolated.
-    pub fn len(&self) -> usize {
-        self.elements.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.elements.is_empty()
-    }
 }

@@ -281,15 +281,11 @@ impl<'a> Tracer<'a> {
     /// first body's mesh facet `facet` ([`raster`]): the ray meets that facet's plane, no BVH.
     #[inline]
     pub fn cast_onto(&self, u: f64, v: f64, facet: u32) -> Hit {
-        let Shape::Mesh(m) = &self.scene.body.shape else {
-            return self.cast(u, v);
-        };
         match self.onto_facet(u, v, facet) {
-            Some((dir, cos_eps, solid, t)) => {
-                let normal = m.normals()[facet as usize];
+            Some((dir, cos_eps, solid, t, normal)) => {
                 self.bring_back(dir, cos_eps, solid, Some((t, normal, Some(facet), 0)))
             }
-            // Edge-on to the line of sight: the BVH decides.
+            // Not a mesh, or edge-on to the line of sight: the BVH decides.
             None => self.cast(u, v),
         }
     }
@@ -389,10 +385,10 @@ impl<'a> Tracer<'a> {
 
     /// Where the line of sight through pixel position `(u, v)` meets the plane of the first
     /// body's mesh facet `facet`: the line of sight (B), its `cos(eps)` and solid-angle factor,
-    /// and the range [m]; `None` for a body that is not a mesh, or a plane met edge-on or
-    /// behind the camera.
+    /// the range [m] and the facet's normal (B); `None` for a body that is not a mesh, or a
+    /// plane met edge-on or behind the camera.
     #[inline]
-    fn onto_facet(&self, u: f64, v: f64, facet: u32) -> Option<(DVec3, f64, f64, f64)> {
+    fn onto_facet(&self, u: f64, v: f64, facet: u32) -> Option<(DVec3, f64, f64, f64, DVec3)> {
         let Shape::Mesh(m) = &self.scene.body.shape else {
             return None;
         };
@@ -400,7 +396,7 @@ impl<'a> Tracer<'a> {
         let normal = m.normals()[facet as usize];
         let a = m.vertices_m()[m.facets()[facet as usize][0] as usize];
         let t = normal.dot(a - self.camera_m) / normal.dot(dir);
-        (t.is_finite() && t > 0.0).then_some((dir, cos_eps, solid, t))
+        (t.is_finite() && t > 0.0).then_some((dir, cos_eps, solid, t, normal))
     }
 
     /// The light of the first body's mesh facet `facet` where the line of sight through pixel
@@ -408,19 +404,9 @@ impl<'a> Tracer<'a> {
     /// `(P/L)` per px^2 (`Tracer::first_body_light`); `None` where the plane is not met in
     /// front. What [`facet_light`] interpolates.
     pub fn facet_light(&self, u: f64, v: f64, facet: u32) -> Option<(f64, f64)> {
-        let (dir, cos_eps, solid, t) = self.onto_facet(u, v, facet)?;
-        let Shape::Mesh(m) = &self.scene.body.shape else {
-            return None;
-        };
-        let normal = m.normals()[facet as usize];
-        let light = self.first_body_light(
-            self.camera_m + dir * t,
-            dir,
-            cos_eps,
-            solid,
-            normal,
-            Some(facet),
-        );
+        let (dir, cos_eps, solid, t, normal) = self.onto_facet(u, v, facet)?;
+        let p = self.camera_m + dir * t;
+        let light = self.first_body_light(p, dir, cos_eps, solid, normal, Some(facet));
         Some((light.direct, light.scattered))
     }
 
@@ -445,26 +431,25 @@ impl<'a> Tracer<'a> {
                 range_m: 0.0,
             };
         }
-        let Some((dir, _, _, t)) = self.onto_facet(u, v, facet) else {
+        let Some((dir, _, _, t, normal)) = self.onto_facet(u, v, facet) else {
             return self.cast_onto(u, v, facet);
         };
-        let hit = |pl| Hit {
-            pl_per_px2: pl,
-            range_m: t,
-        };
-        if unshadowed {
-            return hit(direct.max(0.0) + scattered);
-        }
-        let Shape::Mesh(m) = &self.scene.body.shape else {
-            return hit(direct + scattered);
-        };
         let p = self.camera_m + dir * t;
-        let s = (self.sun_m - p).normalize();
-        let normal = m.normals()[facet as usize];
-        if self.sees_sun(p, p.normalize(), normal, s, Some(facet)) {
-            hit(direct + scattered)
-        } else {
-            hit(scattered)
+        let sees_sun = unshadowed
+            || self.sees_sun(
+                p,
+                p.normalize(),
+                normal,
+                (self.sun_m - p).normalize(),
+                Some(facet),
+            );
+        Hit {
+            pl_per_px2: if sees_sun {
+                direct.max(0.0) + scattered
+            } else {
+                scattered
+            },
+            range_m: t,
         }
     }
 

@@ -218,13 +218,7 @@ fn area_centroid(p: &[DVec2]) -> Option<(f64, DVec2)> {
     Some((0.5 * twice.abs(), p[0] + c / (3.0 * twice)))
 }
 
-/// The triangle `corners` clipped by `lines` (each keeping `a x + b y + c >= 0`): its area
-/// [px^2] and centroid [px]; `None` when nothing is left.
-fn clipped_by(corners: [DVec2; 3], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
-    clip_polygon(&corners, lines)
-}
-
-/// The convex polygon `corners` (at most four) clipped by `lines` (each keeping
+/// The convex polygon `corners` (a triangle, or a pixel's four corners) clipped by `lines` (each keeping
 /// `a x + b y + c >= 0`, at most six with four corners): its area [px^2] and centroid [px];
 /// `None` when nothing is left.
 fn clip_polygon(corners: &[DVec2], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
@@ -415,7 +409,7 @@ impl Rasteriser {
             fragments[k + 1..].iter().all(|b| {
                 let e = self.projected[b.projected as usize].edges;
                 let lines = [pixel[0], pixel[1], pixel[2], pixel[3], e[0], e[1], e[2]];
-                clipped_by(ta.corners, &lines).is_none_or(|(area, _)| area <= OVERLAP_PX2)
+                clip_polygon(&ta.corners, &lines).is_none_or(|(area, _)| area <= OVERLAP_PX2)
             })
         })
     }

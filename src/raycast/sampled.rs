@@ -208,7 +208,7 @@ pub fn render(
         .enumerate()
         .map_init(
             || (Vec::new(), Vec::new(), raster::TileFragments::default()),
-            |(facets, scratch, fragments), (band, (((pl, depth), class), exact))| {
+            |(facets, scratch, tile_fragments), (band, (((pl, depth), class), exact))| {
                 let rows = pl.len() / w;
                 let mut rays = 0;
                 for tile in 0..w.div_ceil(TILE) {
@@ -220,7 +220,7 @@ pub fn render(
                     let nn = n as usize;
                     let mut filled = false;
                     if let Some(r) = &rasteriser {
-                        r.tile_fragments((u0, v0), (cols, rows), fragments);
+                        r.tile_fragments((u0, v0), (cols, rows), tile_fragments);
                     }
                     for j in 0..rows {
                         for i in u0..u0 + cols {
@@ -231,7 +231,7 @@ pub fn render(
                                 // fragments.
                                 let local = j * cols + (i - u0);
                                 let (fragments, area) =
-                                    (fragments.of(local), fragments.area(local));
+                                    (tile_fragments.of(local), tile_fragments.area(local));
                                 let tiled = (area - 1.0).abs() <= COVERED
                                     || (area < 1.0
                                         && !fragments.is_empty()

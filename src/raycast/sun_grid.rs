@@ -135,13 +135,13 @@ impl SunGrid {
                 let lo = p[0].min(p[1]).min(p[2]) - DVec2::splat(pad);
                 let hi = p[0].max(p[1]).max(p[2]) + DVec2::splat(pad);
                 let depth = [a, b, c].map(|x| x.dot(s0));
-                let facing = SunFacing::new(
+                let record = SunFacing::new(
                     f,
                     p,
                     depth[0].min(depth[1]).min(depth[2]),
                     depth[0].max(depth[1]).max(depth[2]),
                 );
-                Some(([a, b - a, c - a], ((lo, hi), facing)))
+                Some(([a, b - a, c - a], ((lo, hi), record)))
             })
             .unzip();
         if tris.is_empty() {

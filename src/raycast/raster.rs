@@ -172,6 +172,22 @@ pub struct Fragment {
     pub centroid: DVec2,
 }
 
+/// The pixels `i` of `[first, first + count)` with `i < hi` and `i + 1 > lo` (a box from `lo`
+/// to `hi` [px] reaches them), as an inclusive range, empty when the first exceeds the last.
+/// Truncation is the floor here (both ends past `first >= 0`), and costs no call to libm's
+/// `floor`.
+#[inline]
+fn pixel_span(lo: f64, hi: f64, first: usize, count: usize) -> (usize, usize) {
+    if hi <= first as f64 {
+        return (1, 0);
+    }
+    let a = lo.max(first as f64) as usize;
+    // The last pixel left of `hi`, `ceil(hi) - 1`: `t >= first + 1` where `t == hi`.
+    let t = hi as usize;
+    let b = if t as f64 == hi { t - 1 } else { t };
+    (a, b.min(first + count - 1))
+}
+
 /// Room for a convex polygon's corners: a triangle clipped by up to seven lines, each of
 /// which adds at most one.
 type Corners = [DVec2; 10];
@@ -301,6 +317,12 @@ impl Rasteriser {
         })
     }
 
+    /// Whether no projected facet's box reaches tile `(x, y)` (of the `tile` px given to
+    /// [`Rasteriser::new`]): no line of sight through it meets the mesh.
+    pub fn tile_is_empty(&self, x: usize, y: usize) -> bool {
+        self.bins.cell(x, y).is_empty()
+    }
+
     /// How many facets are projected.
     pub fn len(&self) -> usize {
         self.projected.len()
@@ -356,18 +378,12 @@ impl Rasteriser {
         tile.areas.resize(cols * rows, 0.0);
         for &k in self.bins.cell(i0 / self.tile, j0 / self.tile) {
             let t = &self.projected[k as usize];
-            // The pixels `i` with `i < hi` and `i + 1 > lo`, inside the region.
-            let span = |lo: f64, hi: f64, first: usize, count: usize| {
-                let a = lo.floor().max(first as f64);
-                let b = (hi.ceil() - 1.0).min((first + count - 1) as f64);
-                (a as usize, b as i64)
-            };
-            let (xa, xb) = span(t.lo.x, t.hi.x, i0, cols);
-            let (ya, yb) = span(t.lo.y, t.hi.y, j0, rows);
-            for y in ya as i64..=yb {
-                for x in xa as i64..=xb {
+            let (xa, xb) = pixel_span(t.lo.x, t.hi.x, i0, cols);
+            let (ya, yb) = pixel_span(t.lo.y, t.hi.y, j0, rows);
+            for y in ya..=yb {
+                for x in xa..=xb {
                     if let Some(f) = t.share(k, x as f64, y as f64) {
-                        let p = (y as usize - j0) * cols + (x as usize - i0);
+                        let p = (y - j0) * cols + (x - i0);
                         tile.areas[p] += f.area_px2;
                         tile.starts[p + 1] += 1;
                         tile.unsorted.push((p as u32, f));
@@ -435,14 +451,10 @@ impl Rasteriser {
         let step = 1.0 / n as f64;
         for &k in self.bins.cell(i0 / self.tile, j0 / self.tile) {
             let t = &self.projected[k as usize];
-            // The region's pixels the facet's bounding box reaches.
-            let span = |lo: f64, hi: f64, first: usize, count: usize| {
-                let a = (lo.floor().max(first as f64) as usize).max(first);
-                let b = (hi.floor().max(0.0) as usize).min(first + count - 1);
-                (a, b)
-            };
-            let (x0, x1) = span(t.lo.x, t.hi.x, i0, cols);
-            let (y0, y1) = span(t.lo.y, t.hi.y, j0, rows);
+            // The region's pixels the facet's bounding box reaches (a pixel at or past `hi`
+            // has every sample past it).
+            let (x0, x1) = pixel_span(t.lo.x, t.hi.x, i0, cols);
+            let (y0, y1) = pixel_span(t.lo.y, t.hi.y, j0, rows);
             if x0 > x1 || y0 > y1 {
                 continue;
             }

@@ -186,13 +186,16 @@ pub fn render(
     };
     let t_raster = t0.elapsed();
     // Tiles of TILE x TILE pixels some line of sight of which may meet a body's bounding
-    // sphere: the others cast nothing.
+    // sphere, or, rasterised, a facet's box: the others cast nothing.
     let (tiles_w, tiles_h) = (w.div_ceil(TILE), h.div_ceil(TILE));
     let covered: Vec<bool> = (0..tiles_w * tiles_h)
         .into_par_iter()
-        .map(|t| {
-            let (u0, v0) = ((t % tiles_w) * TILE, (t / tiles_w) * TILE);
-            tracer.coverage(u0 as f64, v0 as f64, TILE as f64) != Coverage::Empty
+        .map(|t| match &rasteriser {
+            Some(r) => !r.tile_is_empty(t % tiles_w, t / tiles_w),
+            None => {
+                let (u0, v0) = ((t % tiles_w) * TILE, (t / tiles_w) * TILE);
+                tracer.coverage(u0 as f64, v0 as f64, TILE as f64) != Coverage::Empty
+            }
         })
         .collect();
     // Flat per-pixel buffers, filled in bands of TILE rows, tile by tile.

@@ -100,7 +100,7 @@ impl Projected {
     /// covers, `None` for none. The pixel's corners against each edge: all inside, the whole
     /// pixel; all outside one edge, nothing; otherwise the pixel clipped by the edges that
     /// cross it (it lies inside the others' half-planes already).
-    #[inline]
+    #[inline(always)]
     fn share(&self, k: u32, x0: f64, y0: f64) -> Option<Fragment> {
         let mut crossing = [[0.0; 3]; 3];
         let mut n_crossing = 0;

@@ -47,6 +47,13 @@ const MISS: u8 = 1;
 const DARK: u8 = 2;
 const LIT: u8 = 4;
 
+/// How a pixel was cast in the first pass: sampled (`n x n` rays), tiled by its fragments
+/// (its coverage exact, its shadows sampled at their centroids), or exact (tiled with no edge
+/// of the light crossing it, or not covered at all): never cast again.
+const SAMPLED: u8 = 0;
+const TILED: u8 = 1;
+const EXACT: u8 = 2;
+
 /// The first facet at each sample of a region of pixels ([`super::raster`]): the region's
 /// buffer, the index in it of a pixel's sample `(0, 0)`, and its row stride.
 type Seen<'a> = (&'a [u32], usize, usize);
@@ -202,16 +209,16 @@ pub fn render(
     let mut pl = vec![0.0; w * h];
     let mut depth = vec![f64::NAN; w * h];
     let mut class = vec![MISS; w * h];
-    let mut exact = vec![false; w * h];
+    let mut state = vec![SAMPLED; w * h];
     let first_rays: u64 = pl
         .par_chunks_mut(TILE * w)
         .zip(depth.par_chunks_mut(TILE * w))
         .zip(class.par_chunks_mut(TILE * w))
-        .zip(exact.par_chunks_mut(TILE * w))
+        .zip(state.par_chunks_mut(TILE * w))
         .enumerate()
         .map_init(
             || (Vec::new(), Vec::new(), raster::TileFragments::default()),
-            |(facets, scratch, tile_fragments), (band, (((pl, depth), class), exact))| {
+            |(facets, scratch, tile_fragments), (band, (((pl, depth), class), state))| {
                 let rows = pl.len() / w;
                 let mut rays = 0;
                 for tile in 0..w.div_ceil(TILE) {
@@ -235,6 +242,11 @@ pub fn render(
                                 let local = j * cols + (i - u0);
                                 let (fragments, area) =
                                     (tile_fragments.of(local), tile_fragments.area(local));
+                                if fragments.is_empty() {
+                                    // No front covers any of it: every line of sight misses.
+                                    state[p] = EXACT;
+                                    continue;
+                                }
                                 let tiled = (area - 1.0).abs() <= COVERED
                                     || (area < 1.0
                                         && !fragments.is_empty()
@@ -245,7 +257,8 @@ pub fn render(
                                     if area < 1.0 - COVERED {
                                         c |= MISS;
                                     }
-                                    (pl[p], depth[p], class[p], exact[p]) = (v, d, c, e);
+                                    (pl[p], depth[p], class[p]) = (v, d, c);
+                                    state[p] = if e { EXACT } else { TILED };
                                     rays += fragments.len() as u64;
                                     continue;
                                 }
@@ -269,7 +282,9 @@ pub fn render(
         )
         .sum();
     let t_first = t0.elapsed();
-    // Pixels where the light changes: their own class or a neighbour's differs.
+    // Pixels where the light changes: their own class or a neighbour's differs. A tiled
+    // pixel's coverage is exact: there only a change between lit and dark counts (a shadow's
+    // or the terminator's edge), not the limb beside it.
     let mixed = |p: usize| {
         let (i, j) = (p % w, p / w);
         let (x0, x1) = (i.saturating_sub(1), (i + 1).min(w - 1));
@@ -279,7 +294,11 @@ pub fn render(
                 .iter()
                 .fold(mask, |m, &c| m | c);
         }
-        mask.count_ones() > 1
+        if state[p] == TILED {
+            mask & (LIT | DARK) == LIT | DARK
+        } else {
+            mask.count_ones() > 1
+        }
     };
     let edge_n = settings.raycast_edge_samples.max(n);
     let edges: Vec<usize> = if edge_n > n {
@@ -298,7 +317,7 @@ pub fn render(
                 let (u0, v0) = ((t % tiles_w) * TILE, (t / tiles_w) * TILE);
                 (v0..(v0 + TILE).min(h))
                     .flat_map(move |j| (u0..(u0 + TILE).min(w)).map(move |i| j * w + i))
-                    .filter(|&p| !exact[p] && mixed(p))
+                    .filter(|&p| state[p] != EXACT && mixed(p))
             })
             .collect()
     } else {

@@ -26,7 +26,9 @@
 //! light's variation within a facet) and is not cast again as an edge. At the limb a pixel
 //! partly covered is tiled the same way when no two of its fragments overlap (what they
 //! leave uncovered is then where lines of sight miss the body); folds (two fronts over one
-//! point) are sampled as before.
+//! point) are sampled as before. A tiled pixel's coverage is exact, so it is cast again only
+//! where lit and dark meet in its neighbourhood (a shadow's edge, the terminator), not for the
+//! limb beside it; a pixel that no front covers at all is exact and casts nothing.
 //!
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.

@@ -510,6 +510,30 @@ mod tests {
     }
 
     #[test]
+    fn a_boxs_pixel_span_is_the_floor_and_ceiling_definition() {
+        // The pixels `i` in `[first, first + count)` with `i < hi` and `i + 1 > lo`, by
+        // counting, against the span made by truncation.
+        let ends = [
+            0.0, 0.25, 1.0, 2.0, 2.5, 3.0, 7.999, 8.0, 9.5, 15.0, 16.0, 17.25, 1e9,
+        ];
+        for &lo in &[-3.5, -1.0, 0.0, 0.5, 1.0, 2.0, 2.5, 8.0, 9.25, 16.0, 20.0] {
+            for &hi in &ends {
+                if hi <= lo {
+                    continue;
+                }
+                for (first, count) in [(0, 8), (8, 8), (2, 1), (16, 3)] {
+                    let want: Vec<usize> = (first..first + count)
+                        .filter(|&i| (i as f64) < hi && (i + 1) as f64 > lo)
+                        .collect();
+                    let (a, b) = pixel_span(lo, hi, first, count);
+                    let got: Vec<usize> = (a..=b).collect();
+                    assert_eq!(got, want, "lo {lo} hi {hi} first {first} count {count}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn a_triangle_clipped_to_a_pixel_keeps_the_area_and_centroid_inside_it() {
         // Wholly inside: itself.
         let t = [(2.2, 3.1), (2.9, 3.2), (2.5, 3.9)];

@@ -136,6 +136,20 @@ impl Projected {
     }
 }
 
+impl Projected {
+    /// Whether the facet misses the pixel `[x0, x0 + 1] x [y0, y0 + 1]`: one edge is negative
+    /// at all its corners, by more than a billionth of a pixel (so that no sample inside the
+    /// pixel that the edge's own evaluation would put on the facet, or on the edge, is left
+    /// out by rounding).
+    #[inline(always)]
+    fn misses_pixel(&self, x0: f64, y0: f64) -> bool {
+        self.edges.iter().any(|e| {
+            let most = e[0] * x0 + e[1] * y0 + e[2] + e[0].max(0.0) + e[1].max(0.0);
+            most < -1e-9 * (e[0].abs() + e[1].abs())
+        })
+    }
+}
+
 /// The fragments of the pixels of one tile ([`Rasteriser::tile_fragments`]), with the
 /// buffers reused from tile to tile.
 #[derive(Default)]
@@ -460,10 +474,15 @@ impl Rasteriser {
             }
             let [e0, e1, e2] = t.edges;
             for j in y0..=y1 {
-                for b in 0..n {
-                    let y = j as f64 + (b as f64 + 0.5) * step;
-                    let row = ((j - j0) * n + b) * width;
-                    for i in x0..=x1 {
+                for i in x0..=x1 {
+                    // Its samples lie inside the pixel: none is on the facet where the
+                    // facet misses the pixel (most pixels of its box).
+                    if t.misses_pixel(i as f64, j as f64) {
+                        continue;
+                    }
+                    for b in 0..n {
+                        let y = j as f64 + (b as f64 + 0.5) * step;
+                        let row = ((j - j0) * n + b) * width;
                         for a in 0..n {
                             let q = DVec2::new(i as f64 + (a as f64 + 0.5) * step, y);
                             // Barycentric weights (times the doubled area).

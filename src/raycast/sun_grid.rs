@@ -96,6 +96,10 @@ pub struct SunGrid {
     bins: Bins,
     /// Per sun-facing facet: a vertex and two edges [m] (body frame).
     tris: Vec<[DVec3; 3]>,
+    /// The Sun's direction from the body's centre, `s0`, and per sun-facing facet its
+    /// sunmost vertex's coordinate along it [m].
+    s0: DVec3,
+    sunmost: Vec<f64>,
     /// Per facet of the mesh: lit all over (see the module's documentation).
     clear: Vec<bool>,
 }
@@ -201,6 +205,7 @@ impl SunGrid {
                 })
             })
             .collect();
+        let sunmost = shadows_of.iter().map(|a| a.far).collect();
         let mut clear = vec![false; mesh.facets().len()];
         for (a, blocked) in shadows_of.iter().zip(blocked) {
             clear[a.facet] = !blocked;
@@ -213,6 +218,8 @@ impl SunGrid {
             cells,
             bins,
             tris,
+            s0,
+            sunmost,
             clear,
         })
     }
@@ -234,7 +241,13 @@ impl SunGrid {
         if !(x >= 0.0 && y >= 0.0 && x < self.cells[0] as f64 && y < self.cells[1] as f64) {
             return false;
         }
+        // The ray's points sunward of its origin are farther along `s0` than it (the ray is
+        // within `R / d_sun` of `s0`): a facet no part of which is farther cannot be met.
+        let from = origin_m.dot(self.s0);
         self.bins.cell(x as usize, y as usize).iter().any(|&k| {
+            if self.sunmost[k as usize] <= from {
+                return false;
+            }
             let [a, e1, e2] = self.tris[k as usize];
             let p = dir.cross(e2);
             let det = e1.dot(p);

@@ -211,7 +211,7 @@ pub fn render(
     let mut pl = vec![0.0; w * h];
     let mut depth = vec![f64::NAN; w * h];
     let mut class = vec![MISS; w * h];
-    let mut state = vec![SAMPLED; w * h];
+    let mut state = vec![EXACT; w * h];
     let first_rays: u64 = pl
         .par_chunks_mut(TILE * w)
         .zip(depth.par_chunks_mut(TILE * w))
@@ -245,8 +245,8 @@ pub fn render(
                                 let (fragments, area) =
                                     (tile_fragments.of(local), tile_fragments.area(local));
                                 if fragments.is_empty() {
-                                    // No front covers any of it: every line of sight misses.
-                                    state[p] = EXACT;
+                                    // No front covers any of it: every line of sight misses
+                                    // (exact, as the pixels of tiles that cast nothing).
                                     continue;
                                 }
                                 let tiled = (area - 1.0).abs() <= COVERED
@@ -274,7 +274,7 @@ pub fn render(
                             });
                             let (v, d, c, r) =
                                 cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, seen);
-                            (pl[p], depth[p], class[p]) = (v, d, c);
+                            (pl[p], depth[p], class[p], state[p]) = (v, d, c, SAMPLED);
                             rays += r;
                         }
                     }
@@ -304,22 +304,19 @@ pub fn render(
     };
     let edge_n = settings.raycast_edge_samples.max(n);
     let edges: Vec<usize> = if edge_n > n {
-        // A pixel's neighbours lie in its tile or the next ones: where none of those was
-        // cast, every ray around it missed.
-        let near_cast = |t: usize| {
-            let (tx, ty) = (t % tiles_w, t / tiles_w);
-            (ty.saturating_sub(1)..=(ty + 1).min(tiles_h - 1)).any(|y| {
-                (tx.saturating_sub(1)..=(tx + 1).min(tiles_w - 1)).any(|x| covered[y * tiles_w + x])
-            })
-        };
-        (0..tiles_w * tiles_h)
-            .into_par_iter()
-            .filter(|&t| near_cast(t))
-            .flat_map_iter(|t| {
-                let (u0, v0) = ((t % tiles_w) * TILE, (t / tiles_w) * TILE);
-                (v0..(v0 + TILE).min(h))
-                    .flat_map(move |j| (u0..(u0 + TILE).min(w)).map(move |i| j * w + i))
-                    .filter(|&p| state[p] != EXACT && mixed(p))
+        // Only pixels cast by samples or tiled with shadows may be cast again (every other
+        // pixel is exact, those of tiles that cast nothing included): a scan of their states.
+        state
+            .par_chunks(TILE * w)
+            .enumerate()
+            .flat_map_iter(|(band, states)| {
+                let first = band * TILE * w;
+                states
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &s)| s != EXACT)
+                    .map(move |(k, _)| first + k)
+                    .filter(|&p| mixed(p))
             })
             .collect()
     } else {

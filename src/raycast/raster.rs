@@ -117,6 +117,8 @@ impl Projected {
         }
         let (area_px2, centroid) = if n_crossing == 0 {
             (1.0, DVec2::new(x0 + 0.5, y0 + 0.5))
+        } else if n_crossing == 1 {
+            pixel_cut(x0, y0, crossing[0])?
         } else {
             let (x1, y1) = (x0 + 1.0, y0 + 1.0);
             let square = [
@@ -227,6 +229,67 @@ fn clip_line(src: &[DVec2], dst: &mut Corners, [a, b, c]: [f64; 3]) -> usize {
         (p, sp) = (q, sq);
     }
     n
+}
+
+/// The part of pixel `[x0, x0 + 1] x [y0, y0 + 1]` where `a x + b y + c >= 0`, for a line that
+/// crosses it: its area [px^2] and centroid [px] in closed form (what [`clip_polygon`] gives
+/// for the pixel's corners and one line, to rounding, at a third of its cost); `None` for no
+/// area. One corner on the kept side: a right triangle at it; three: the pixel less such a
+/// triangle at the fourth; two (adjacent, the line being straight): a trapezoid on their
+/// side.
+#[inline]
+fn pixel_cut(x0: f64, y0: f64, [a, b, c]: [f64; 3]) -> Option<(f64, DVec2)> {
+    // Corners 0 (x0, y0), 1 (x0 + 1, y0), 2 (x0 + 1, y0 + 1), 3 (x0, y0 + 1), in order round
+    // the pixel.
+    let f00 = a * x0 + b * y0 + c;
+    let f = [f00, f00 + a, f00 + a + b, f00 + b];
+    let corner = [
+        DVec2::new(x0, y0),
+        DVec2::new(x0 + 1.0, y0),
+        DVec2::new(x0 + 1.0, y0 + 1.0),
+        DVec2::new(x0, y0 + 1.0),
+    ];
+    let inside = f.map(|v| v >= 0.0);
+    let count = inside.iter().filter(|&&i| i).count();
+    // The right triangle at corner `k` cut off by the line (where `f` changes sign along both
+    // of its sides): area and centroid.
+    let triangle = |k: usize| {
+        let (prev, next) = ((k + 3) % 4, (k + 1) % 4);
+        let t_next = f[k] / (f[k] - f[next]);
+        let t_prev = f[k] / (f[k] - f[prev]);
+        let (to_next, to_prev) = (corner[next] - corner[k], corner[prev] - corner[k]);
+        (
+            0.5 * t_next * t_prev,
+            corner[k] + (to_next * t_next + to_prev * t_prev) / 3.0,
+        )
+    };
+    let (area, centroid) = match count {
+        1 => triangle(inside.iter().position(|&i| i)?),
+        3 => {
+            let (cut, at) = triangle(inside.iter().position(|&i| !i)?);
+            let area = 1.0 - cut;
+            let centre = DVec2::new(x0 + 0.5, y0 + 0.5);
+            (area, (centre - at * cut) / area)
+        }
+        2 => {
+            // The kept side `k, k + 1`; the line meets the sides from `k` to `k - 1` and from
+            // `k + 1` to `k + 2` at heights `h0` and `h1` (from the kept side).
+            let k = (0..4).find(|&k| inside[k] && inside[(k + 1) % 4])?;
+            let (k1, k2, k3) = ((k + 1) % 4, (k + 2) % 4, (k + 3) % 4);
+            let h0 = f[k] / (f[k] - f[k3]);
+            let h1 = f[k1] / (f[k1] - f[k2]);
+            let sum = h0 + h1;
+            if sum <= 0.0 {
+                return None;
+            }
+            let (along, up) = (corner[k1] - corner[k], corner[k3] - corner[k]);
+            let s = (h0 + 2.0 * h1) / (3.0 * sum);
+            let t = (h0 * h0 + h0 * h1 + h1 * h1) / (3.0 * sum);
+            (0.5 * sum, corner[k] + along * s + up * t)
+        }
+        _ => return None,
+    };
+    (area > 0.0).then_some((area, centroid))
 }
 
 /// Area [px^2] and centroid [px] of a convex polygon (the shoelace formula about its first
@@ -526,6 +589,46 @@ mod tests {
             assert!((f.area_px2 - g.area_px2).abs() < 1e-15);
             (f.area_px2, f.centroid)
         })
+    }
+
+    #[test]
+    fn a_pixel_cut_by_one_line_is_the_polygon_clip() {
+        // Lines through the pixel (2, 3) at every angle and offset that crosses it, against
+        // the general clip of its four corners.
+        let (x0, y0) = (2.0, 3.0);
+        let square = [
+            DVec2::new(x0, y0),
+            DVec2::new(x0 + 1.0, y0),
+            DVec2::new(x0 + 1.0, y0 + 1.0),
+            DVec2::new(x0, y0 + 1.0),
+        ];
+        let mut compared = 0;
+        for k in 0..72 {
+            let angle = k as f64 * 5.0_f64.to_radians() + 0.01;
+            let (a, b) = (3.0 * angle.cos(), 3.0 * angle.sin());
+            for m in 1..40 {
+                // Through the point (x0 + m/40, y0 + (40 - m)/40 * 0.9).
+                let p = DVec2::new(x0 + m as f64 / 40.0, y0 + (40 - m) as f64 / 44.0);
+                let line = [a, b, -(a * p.x + b * p.y)];
+                let want = clip_polygon(&square, &[line]);
+                let got = pixel_cut(x0, y0, line);
+                match (want, got) {
+                    (Some((wa, wc)), Some((ga, gc))) => {
+                        assert!((wa - ga).abs() < 1e-13, "area {wa} {ga} line {line:?}");
+                        assert!(
+                            (wc - gc).length() < 1e-12,
+                            "centroid {wc} {gc} line {line:?}"
+                        );
+                        compared += 1;
+                    }
+                    (w, g) => assert!(
+                        w.is_none_or(|w| w.0 < 1e-15) && g.is_none_or(|g| g.0 < 1e-15),
+                        "{w:?} {g:?} line {line:?}"
+                    ),
+                }
+            }
+        }
+        assert!(compared > 2000, "{compared}");
     }
 
     #[test]

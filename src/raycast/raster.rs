@@ -99,7 +99,8 @@ impl Projected {
     /// The part of pixel `[x0, x0 + 1] x [y0, y0 + 1]` this facet (the `k`-th projected)
     /// covers, `None` for none. The pixel's corners against each edge: all inside, the whole
     /// pixel; all outside one edge, nothing; otherwise the pixel clipped by the edges that
-    /// cross it (it lies inside the others' half-planes already).
+    /// cross it (it lies inside the others' half-planes already), in closed form for one
+    /// ([`pixel_cut`]).
     #[inline(always)]
     fn share(&self, k: u32, x0: f64, y0: f64) -> Option<Fragment> {
         let mut crossing = [[0.0; 3]; 3];
@@ -136,9 +137,7 @@ impl Projected {
             centroid,
         })
     }
-}
 
-impl Projected {
     /// Whether the facet misses the pixel `[x0, x0 + 1] x [y0, y0 + 1]`: one edge is negative
     /// at all its corners, by more than a billionth of a pixel (so that no sample inside the
     /// pixel that the edge's own evaluation would put on the facet, or on the edge, is left
@@ -311,9 +310,9 @@ fn area_centroid(p: &[DVec2]) -> Option<(f64, DVec2)> {
     Some((0.5 * twice.abs(), p[0] + c / (3.0 * twice)))
 }
 
-/// The convex polygon `corners` (a triangle, or a pixel's four corners) clipped by `lines` (each keeping
-/// `a x + b y + c >= 0`, at most six with four corners): its area [px^2] and centroid [px];
-/// `None` when nothing is left.
+/// The convex polygon `corners` (a triangle, or a pixel's four corners) clipped by `lines`
+/// (each keeping `a x + b y + c >= 0`, at most six with four corners): its area [px^2] and
+/// centroid [px]; `None` when nothing is left.
 fn clip_polygon(corners: &[DVec2], lines: &[[f64; 3]]) -> Option<(f64, DVec2)> {
     let (mut a, mut b): (Corners, Corners) = ([DVec2::ZERO; 10], [DVec2::ZERO; 10]);
     a[..corners.len()].copy_from_slice(corners);

@@ -250,9 +250,7 @@ pub fn render(
                                     continue;
                                 }
                                 let tiled = (area - 1.0).abs() <= COVERED
-                                    || (area < 1.0
-                                        && !fragments.is_empty()
-                                        && r.single_layer((i, v0 + j), fragments));
+                                    || (area < 1.0 && r.single_layer((i, v0 + j), fragments));
                                 if tiled {
                                     let (v, d, mut c, e) =
                                         shade_fragments(&tracer, lights, fragments);

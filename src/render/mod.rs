@@ -35,24 +35,6 @@ pub use settings::{FovShape, Integration, MapFilter, PointBudget, Sampling, Sett
 use std::time::Instant;
 use view::View;
 
-/// Keeps the memory of freed frames in the process for the next frame (glibc on Linux; a no-op
-/// elsewhere). glibc hands a block of 128 KiB or more straight back to the kernel when it is
-/// freed, and the heap's top once 128 KiB of it is free: a frame's image buffers (8 MB each at
-/// 1024 x 1024, f64) then come back as fresh pages, each zeroed by the kernel at its first
-/// touch. On Bennu (`config/bennu.toml`) that was a quarter of the render's time (64 -> 49 ms,
-/// `docs/performance.md`). Blocks up to 32 MiB (glibc's most) now come from the heap, which
-/// keeps up to 1 GiB free before it shrinks. The binary calls it at start; a program embedding
-/// the library decides for itself.
-pub fn retain_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only sets two of the allocator's thresholds; it is called before any
-    // thread of ours exists.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
-    }
-}
-
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum RenderError {
     #[error(

@@ -438,10 +438,7 @@ impl Detector {
         let gain = self.adc_gain_dn_per_e;
         let last = self.adc_code(self.full_well_e);
         let drop = self.bit_depth - self.saved_bits;
-        let mut dark = DarkDn {
-            below: Vec::new(),
-            values: Vec::new(),
-        };
+        let (mut below, mut values) = (Vec::new(), Vec::new());
         let mut code = self.adc_code(0.0);
         loop {
             // P(code at most `code`): the electrons stay below the next code's edge.
@@ -456,12 +453,12 @@ impl Detector {
             } else {
                 (p * 18_446_744_073_709_551_616.0) as u64
             };
-            dark.below.push(b);
-            dark.values.push((code >> drop) as u16);
+            below.push(b);
+            values.push((code >> drop) as u16);
             if b == u64::MAX {
-                return Some(dark);
+                return Some(DarkDn::new(below, values));
             }
-            if dark.below.len() == 64 {
+            if below.len() == 64 {
                 return None;
             }
             code += 1;
@@ -476,6 +473,11 @@ struct DarkDn {
     /// `P(DN <= values[k])` in units of 2^-64; the last is `u64::MAX`.
     below: Vec<u64>,
     values: Vec<u16>,
+    /// By the draw's top [`DarkDn::BUCKET_BITS`] bits: the DN of every draw with those bits,
+    /// or [`DarkDn::SEARCH`] where a step of `below` falls among them. The same DN as the
+    /// search, without its unpredictable branches (most draws end at the first or second
+    /// step, at random).
+    bucket: [u16; 1 << DarkDn::BUCKET_BITS],
 }
 
 impl DarkDn {
@@ -485,8 +487,40 @@ impl DarkDn {
             return self.values[0];
         }
         let u = r.next_u64();
+        let v = self.bucket[(u >> (64 - Self::BUCKET_BITS)) as usize];
+        if v != Self::SEARCH {
+            return v;
+        }
+        self.search(u)
+    }
+
+    const BUCKET_BITS: u32 = 8;
+    const SEARCH: u16 = u16::MAX;
+
+    /// The DN of the draw `u`: the first step of `below` above it.
+    #[inline]
+    fn search(&self, u: u64) -> u16 {
         let k = self.below.iter().position(|&b| u < b);
         self.values[k.unwrap_or(self.values.len() - 1)]
+    }
+
+    /// `below` and `values` with their buckets.
+    fn new(below: Vec<u64>, values: Vec<u16>) -> DarkDn {
+        let mut dark = DarkDn {
+            below,
+            values,
+            bucket: [Self::SEARCH; 1 << Self::BUCKET_BITS],
+        };
+        let shift = 64 - Self::BUCKET_BITS;
+        for b in 0..1u64 << Self::BUCKET_BITS {
+            // The bucket's least and greatest draws.
+            let (lo, hi) = (b << shift, (b << shift) | ((1u64 << shift) - 1));
+            let v = dark.search(lo);
+            if v == dark.search(hi) {
+                dark.bucket[b as usize] = v;
+            }
+        }
+        dark
     }
 }
 
@@ -653,6 +687,40 @@ mod tests {
             histogram(&table)[8] > n / 2,
             "most dark pixels at the offset"
         );
+    }
+
+    /// The dark DN's buckets give the search's DN for every draw: at each step of the table,
+    /// either side of it, at each bucket's ends, and at draws spread over the whole range.
+    #[test]
+    fn the_dark_dns_buckets_are_its_search() {
+        for (gain, sigma) in [(0.2, 3.0), (1.0, 3.0), (0.05, 1.0), (4.0, 0.1)] {
+            let d = Detector {
+                adc_gain_dn_per_e: gain,
+                offset_dn: 8.0,
+                ..det(Noise {
+                    readout: Some(noise::Readout { sigma_e: sigma }),
+                    ..Default::default()
+                })
+            };
+            let dark = d.dark_dn().expect("a narrow dark distribution");
+            let shift = 64 - DarkDn::BUCKET_BITS;
+            let steps = dark
+                .below
+                .iter()
+                .flat_map(|&b| [b.wrapping_sub(1), b, b.wrapping_add(1)]);
+            let ends = (0..1u64 << DarkDn::BUCKET_BITS)
+                .flat_map(|b| [b << shift, (b << shift) | ((1 << shift) - 1)]);
+            let spread = (0..100_000u64).map(|k| k.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let mut buckets_used = 0;
+            for u in steps.chain(ends).chain(spread) {
+                let v = dark.bucket[(u >> shift) as usize];
+                if v != DarkDn::SEARCH {
+                    assert_eq!(v, dark.search(u), "gain {gain} sigma {sigma} draw {u}");
+                    buckets_used += 1;
+                }
+            }
+            assert!(buckets_used > 90_000, "{buckets_used}");
+        }
     }
 
     /// The DN alone ([`Detector::dn_into`]) are the DN of the signal planes' path

@@ -112,6 +112,13 @@ fn cast_onto(tracer: &Tracer, lights: Lights, u: f64, v: f64, facet: u32) -> Hit
     }
 }
 
+/// `len` copies of `value`, written by the pool's threads.
+fn filled<T: Copy + Send + Sync>(value: T, len: usize) -> Vec<T> {
+    let mut v = Vec::with_capacity(len);
+    v.par_extend(rayon::iter::repeat_n(value, len));
+    v
+}
+
 /// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
 /// the rays that met the body [m] (NaN for none), the classes met, the rays cast. With
 /// `seen`, the first facet at each of its samples.
@@ -208,13 +215,20 @@ pub fn render(
         })
         .collect();
     // Flat per-pixel buffers, filled in bands of TILE rows, tile by tile.
-    let mut pl = vec![0.0; w * h];
-    let mut depth = vec![f64::NAN; w * h];
-    let mut class = vec![MISS; w * h];
-    let mut state = vec![EXACT; w * h];
+    // (Filled by both threads: a frame's buffers are 18 MB, and the allocator hands them back
+    // as they were freed. The depth only where the frame keeps it.)
+    let mut pl = filled(0.0, w * h);
+    let mut depth = filled(f64::NAN, if settings.depth { w * h } else { 0 });
+    let mut class = filled(MISS, w * h);
+    let mut state = filled(EXACT, w * h);
+    let depth_bands: Vec<&mut [f64]> = if settings.depth {
+        depth.chunks_mut(TILE * w).collect()
+    } else {
+        (0..h.div_ceil(TILE)).map(|_| &mut [][..]).collect()
+    };
     let first_rays: u64 = pl
         .par_chunks_mut(TILE * w)
-        .zip(depth.par_chunks_mut(TILE * w))
+        .zip(depth_bands)
         .zip(class.par_chunks_mut(TILE * w))
         .zip(state.par_chunks_mut(TILE * w))
         .enumerate()
@@ -257,7 +271,10 @@ pub fn render(
                                     if area < 1.0 - COVERED {
                                         c |= MISS;
                                     }
-                                    (pl[p], depth[p], class[p]) = (v, d, c);
+                                    (pl[p], class[p]) = (v, c);
+                                    if let Some(x) = depth.get_mut(p) {
+                                        *x = d;
+                                    }
                                     state[p] = if e { EXACT } else { TILED };
                                     rays += fragments.len() as u64;
                                     continue;
@@ -272,7 +289,10 @@ pub fn render(
                             });
                             let (v, d, c, r) =
                                 cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, seen);
-                            (pl[p], depth[p], class[p], state[p]) = (v, d, c, SAMPLED);
+                            (pl[p], class[p], state[p]) = (v, c, SAMPLED);
+                            if let Some(x) = depth.get_mut(p) {
+                                *x = d;
+                            }
                             rays += r;
                         }
                     }
@@ -338,10 +358,19 @@ pub fn render(
     let mut rays = first_rays;
     for (&p, r) in edges.iter().zip(&refined) {
         pl[p] = r.0;
-        depth[p] = r.1;
+        if let Some(x) = depth.get_mut(p) {
+            *x = r.1;
+        }
         rays += r.3;
     }
-    let total: f64 = pl.iter().sum();
+    // The total and the lit pixels, by fixed runs of pixels summed in order: the same bits
+    // whatever the thread count.
+    let (total, covered_px) = pl
+        .par_chunks(1 << 16)
+        .map(|run| (run.iter().sum(), run.iter().filter(|&&x| x > 0.0).count()))
+        .collect::<Vec<(f64, usize)>>()
+        .into_iter()
+        .fold((0.0, 0), |(t, c), (rt, rc)| (t + rt, c + rc));
     if !total.is_finite() {
         return Err(RenderError::NonFinite {
             stage: "ray casting",
@@ -360,7 +389,7 @@ pub fn render(
         points_sampled: w * h,
         points_kept: edges.len(),
         surface_samples: rays as usize,
-        covered_px: pl.iter().filter(|&&x| x > 0.0).count() as f64,
+        covered_px: covered_px as f64,
         total_pl_points: total,
         total_pl_image: total,
         total_pl_gridded: total,

@@ -121,42 +121,46 @@ impl SunGrid {
         let spread = (r / (d_sun - r)).asin();
         let pad = 2.0 * r * spread * 2.0 + 1e-9 * r;
         let v = mesh.vertices_m();
-        // Per sun-facing facet (in parallel, in facet order): a vertex and two edges, its
-        // padded box across s0, and its projection and extent along s0 [m].
+        // The sun-facing facets: facing the Sun from some point of the body (a facet edge-on
+        // to s0 may face the Sun seen from elsewhere).
         let facing = -spread.sin();
-        let (tris, (boxes, shadows_of)): (Vec<_>, (Vec<_>, Vec<_>)) = mesh
-            .facets()
+        let normals = mesh.normals();
+        let sun_facing: Vec<u32> = (0..normals.len() as u32)
+            .filter(|&f| !(normals[f as usize].dot(s0) < facing))
+            .collect();
+        if sun_facing.is_empty() {
+            return None;
+        }
+        // Per sun-facing facet (in parallel, in facet order): a vertex and two edges, and its
+        // projection and extent along s0 [m]; each written in place.
+        let corners_of = |f: u32| mesh.facets()[f as usize].map(|k| v[k as usize]);
+        let tris: Vec<[DVec3; 3]> = sun_facing
             .par_iter()
-            .enumerate()
-            .filter_map(|(f, tri)| {
-                // Facing the Sun from some point of the body (a facet edge-on to s0 may
-                // face the Sun seen from elsewhere).
-                if mesh.normals()[f].dot(s0) < facing {
-                    return None;
-                }
-                let [a, b, c] = tri.map(|k| v[k as usize]);
+            .map(|&f| {
+                let [a, b, c] = corners_of(f);
+                [a, b - a, c - a]
+            })
+            .collect();
+        let shadows_of: Vec<SunFacing> = sun_facing
+            .par_iter()
+            .map(|&f| {
+                let [a, b, c] = corners_of(f);
                 let p = [a, b, c].map(|x| DVec2::new(x.dot(e1), x.dot(e2)));
-                let lo = p[0].min(p[1]).min(p[2]) - DVec2::splat(pad);
-                let hi = p[0].max(p[1]).max(p[2]) + DVec2::splat(pad);
                 let depth = [a, b, c].map(|x| x.dot(s0));
-                let record = SunFacing::new(
-                    f,
+                SunFacing::new(
+                    f as usize,
                     p,
                     depth[0].min(depth[1]).min(depth[2]),
                     depth[0].max(depth[1]).max(depth[2]),
-                );
-                Some(([a, b - a, c - a], ((lo, hi), record)))
+                )
             })
-            .unzip();
-        if tris.is_empty() {
-            return None;
-        }
-        let lo = boxes
-            .iter()
-            .fold(DVec2::splat(f64::INFINITY), |m, b| m.min(b.0));
-        let hi = boxes
-            .iter()
-            .fold(DVec2::splat(f64::NEG_INFINITY), |m, b| m.max(b.1));
+            .collect();
+        // The padded boxes across s0 [m].
+        let (lo, hi) = shadows_of.iter().fold(
+            (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)),
+            |(lo, hi), a| (lo.min(a.lo), hi.max(a.hi)),
+        );
+        let (lo, hi) = (lo - DVec2::splat(pad), hi + DVec2::splat(pad));
         let extent = hi - lo;
         let cell_m = (extent.x * extent.y / (CELLS_PER_FACET * tris.len() as f64))
             .sqrt()
@@ -168,10 +172,10 @@ impl SunGrid {
         let cell_m = (extent.x / cells[0] as f64).max(extent.y / cells[1] as f64);
         // Truncation is the floor here (negative values clamp to 0): no libm call.
         let index = |x: f64, n: usize| ((x / cell_m).max(0.0) as usize).min(n - 1);
-        let spans: Vec<[[usize; 2]; 2]> = boxes
+        let spans: Vec<[[usize; 2]; 2]> = shadows_of
             .iter()
-            .map(|&(lo_b, hi_b)| {
-                let (a, b) = (lo_b - lo, hi_b - lo);
+            .map(|f| {
+                let (a, b) = (f.lo - DVec2::splat(pad) - lo, f.hi + DVec2::splat(pad) - lo);
                 [
                     [index(a.x, cells[0]), index(b.x, cells[0])],
                     [index(a.y, cells[1]), index(b.y, cells[1])],
@@ -181,23 +185,27 @@ impl SunGrid {
         let bins = Bins::new(cells, &spans);
         // A facet is clear when no facet binned with it can lie sunward of it over its
         // projection. Separations are taken with a tolerance a billionth of the body's radius.
+        // The cheap tests first, on compact arrays: how far sunward the other reaches, then
+        // whether this is the first cell both reach (each pair once), then the boxes.
         let eps = 1e-9 * r;
+        let sunmost: Vec<f64> = shadows_of.iter().map(|a| a.far).collect();
         let blocked: Vec<bool> = shadows_of
             .par_iter()
             .enumerate()
             .map(|(k, a)| {
                 let [[x0, x1], [y0, y1]] = spans[k];
+                let near = a.near + eps;
                 (y0..=y1).any(|y| {
                     (x0..=x1).any(|x| {
                         bins.cell(x, y).iter().any(|&g| {
-                            let b = &shadows_of[g as usize];
-                            // Each pair once: in the first cell both spans reach.
-                            let [[bx0, _], [by0, _]] = spans[g as usize];
-                            x == x0.max(bx0)
-                                && y == y0.max(by0)
-                                && g as usize != k
-                                && b.far > a.near + eps
-                                && b.lo.cmplt(a.hi - eps).all()
+                            let g = g as usize;
+                            let [[bx0, _], [by0, _]] = spans[g];
+                            if x != x0.max(bx0) || y != y0.max(by0) || g == k || sunmost[g] <= near
+                            {
+                                return false;
+                            }
+                            let b = &shadows_of[g];
+                            b.lo.cmplt(a.hi - eps).all()
                                 && a.lo.cmplt(b.hi - eps).all()
                                 && a.overlaps(b, eps)
                         })
@@ -205,7 +213,6 @@ impl SunGrid {
                 })
             })
             .collect();
-        let sunmost = shadows_of.iter().map(|a| a.far).collect();
         let mut clear = vec![false; mesh.facets().len()];
         for (a, blocked) in shadows_of.iter().zip(blocked) {
             clear[a.facet] = !blocked;

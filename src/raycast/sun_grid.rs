@@ -122,11 +122,12 @@ impl SunGrid {
         let pad = 2.0 * r * spread * 2.0 + 1e-9 * r;
         let v = mesh.vertices_m();
         // The sun-facing facets: facing the Sun from some point of the body (a facet edge-on
-        // to s0 may face the Sun seen from elsewhere).
+        // to s0 may face the Sun seen from elsewhere). A mesh's normals are finite: its
+        // vertices are, and its degenerate facets were dropped.
         let facing = -spread.sin();
         let normals = mesh.normals();
         let sun_facing: Vec<u32> = (0..normals.len() as u32)
-            .filter(|&f| !(normals[f as usize].dot(s0) < facing))
+            .filter(|&f| normals[f as usize].dot(s0) >= facing)
             .collect();
         if sun_facing.is_empty() {
             return None;

@@ -215,8 +215,8 @@ pub fn render(
         })
         .collect();
     // Flat per-pixel buffers, filled in bands of TILE rows, tile by tile.
-    // (Filled by both threads: a frame's buffers are 18 MB, and the allocator hands them back
-    // as they were freed. The depth only where the frame keeps it.)
+    // (Filled by the pool's threads: 10 MB at 1024 x 1024, which the allocator hands back as
+    // they were freed. The depth, 8 MB more, only where the frame keeps it.)
     let mut pl = filled(0.0, w * h);
     let mut depth = filled(f64::NAN, if settings.depth { w * h } else { 0 });
     let mut class = filled(MISS, w * h);

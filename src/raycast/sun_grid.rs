@@ -199,8 +199,6 @@ impl SunGrid {
         let bins = Bins::new(cells, &spans);
         // A facet is clear when no facet binned with it can lie sunward of it over its
         // projection. Separations are taken with a tolerance a billionth of the body's radius.
-        // The cheap tests first, on compact arrays: how far sunward the other reaches, then
-        // whether this is the first cell both reach (each pair once), then the boxes.
         let eps = 1e-9 * r;
         let sunmost: Vec<f64> = shadows_of.iter().map(|a| a.far).collect();
         // Cell by cell (rows in parallel), each pair of its facets in the first cell both

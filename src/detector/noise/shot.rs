@@ -32,8 +32,8 @@ pub fn poisson(mean_e: f64, rng: &mut impl Rng) -> f64 {
 /// `rand_distr` computes all ten of the method's constants per distribution, where a pixel
 /// has a distribution of its own and the draw ends at its first steps (N, I, S) almost
 /// always; here the constants of the later steps are computed only when they are reached.
-/// That halves a lit pixel's shot noise (42 -> 25 ns a draw); the test below checks the draws
-/// against `rand_distr`'s for 2e6 draws over means from 12 to 1e7.
+/// A lit pixel's draw takes 25 ns instead of 42; the test below checks the draws against
+/// `rand_distr`'s for 2e6 draws over means from 12 to 1e7.
 fn poisson_ad(lambda: f64, rng: &mut impl Rng) -> f64 {
     let s = lambda.sqrt();
     let l = (lambda - 1.1484).floor();

@@ -481,6 +481,9 @@ struct DarkDn {
 }
 
 impl DarkDn {
+    const BUCKET_BITS: u32 = 8;
+    const SEARCH: u16 = u16::MAX;
+
     #[inline]
     fn draw(&self, r: &mut impl rand::Rng) -> u16 {
         if self.values.len() == 1 {
@@ -493,9 +496,6 @@ impl DarkDn {
         }
         self.search(u)
     }
-
-    const BUCKET_BITS: u32 = 8;
-    const SEARCH: u16 = u16::MAX;
 
     /// The DN of the draw `u`: the first step of `below` above it.
     #[inline]

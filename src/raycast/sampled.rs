@@ -112,6 +112,15 @@ fn cast_onto(tracer: &Tracer, lights: Lights, u: f64, v: f64, facet: u32) -> Hit
     }
 }
 
+/// Pixel `p`'s mean range `d` [m] into `depth`, where the frame keeps its depth (else
+/// `depth` is empty).
+#[inline]
+fn keep_depth(depth: &mut [f64], p: usize, d: f64) {
+    if let Some(x) = depth.get_mut(p) {
+        *x = d;
+    }
+}
+
 /// `len` copies of `value`, written by the pool's threads.
 fn filled<T: Copy + Send + Sync>(value: T, len: usize) -> Vec<T> {
     let mut v = Vec::with_capacity(len);
@@ -272,9 +281,7 @@ pub fn render(
                                         c |= MISS;
                                     }
                                     (pl[p], class[p]) = (v, c);
-                                    if let Some(x) = depth.get_mut(p) {
-                                        *x = d;
-                                    }
+                                    keep_depth(depth, p, d);
                                     state[p] = if e { EXACT } else { TILED };
                                     rays += fragments.len() as u64;
                                     continue;
@@ -290,9 +297,7 @@ pub fn render(
                             let (v, d, c, r) =
                                 cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, seen);
                             (pl[p], class[p], state[p]) = (v, c, SAMPLED);
-                            if let Some(x) = depth.get_mut(p) {
-                                *x = d;
-                            }
+                            keep_depth(depth, p, d);
                             rays += r;
                         }
                     }
@@ -358,9 +363,7 @@ pub fn render(
     let mut rays = first_rays;
     for (&p, r) in edges.iter().zip(&refined) {
         pl[p] = r.0;
-        if let Some(x) = depth.get_mut(p) {
-            *x = r.1;
-        }
+        keep_depth(&mut depth, p, r.1);
         rays += r.3;
     }
     // The total and the lit pixels, by fixed runs of pixels summed in order: the same bits

@@ -11,8 +11,9 @@
 //! [`crate::raycast::sampled`] renders it), the geometry cast once, so that a trial set of
 //! parameters costs only the BRDF's evaluations. A pixel is used when all its lines of sight
 //! and its eight neighbours' meet the body in direct sunlight (limb, terminator and shadow
-//! edges are left out, where the image depends on sub-pixel geometry) and it is not
-//! saturated.
+//! edges are left out, where the image depends on sub-pixel geometry), it is not a mesh's
+//! fold (two fronts over one point, which the renderer casts with its edges' rays: there too
+//! the image depends on which facet each sub-pixel ray sees) and it is not saturated.
 //!
 //! Observed DN become electrons, `e = (DN step - offset) / gain`, with the variance
 //! `m + sigma_read^2 + (step / gain)^2 / 12` (shot noise on the model's electrons `m`, read
@@ -144,6 +145,10 @@ fn gather(images: &[Image], n: u32) -> Result<Data, InversionError> {
                         return Some(out);
                     }
                 }
+                // A fold (two fronts over one point, `area > 1`): the renderer casts it with
+                // the edges' rays, its value set by which facet each sees. It is left out
+                // (empty) once its lines of sight are known to be lit.
+                let fold = rasteriser.is_some();
                 let mut out = Vec::with_capacity((n * n) as usize);
                 for j in 0..n {
                     for i in 0..n {
@@ -153,6 +158,9 @@ fn gather(images: &[Image], n: u32) -> Result<Data, InversionError> {
                         )?;
                         out.push([mu0, mu, cg, kk * e_per_pl / (n * n) as f64]);
                     }
+                }
+                if fold {
+                    out.clear();
                 }
                 Some(out)
             })
@@ -165,7 +173,7 @@ fn gather(images: &[Image], n: u32) -> Result<Data, InversionError> {
             let (i, j) = (p % w, p / w);
             let border = i == 0 || j == 0 || i + 1 == w || j + 1 == h;
             let interior = !border && crate::raycast::around(p, w, h).all(|q| per_px[q].is_some());
-            if !interior || im.dn[p] >= max_dn {
+            if !interior || im.dn[p] >= max_dn || per_px[p].as_ref().is_some_and(Vec::is_empty) {
                 continue;
             }
             let e = (im.dn[p] as f64 * det.saved_dn_step() - det.offset_dn) / det.adc_gain_dn_per_e;

@@ -519,51 +519,86 @@ impl Rasteriser {
         facet: &mut Vec<u32>,
         depth: &mut Vec<f64>,
     ) {
-        let width = cols * n;
         facet.clear();
-        facet.resize(width * rows * n, NONE);
+        facet.resize(cols * n * rows * n, NONE);
         depth.clear();
-        depth.resize(width * rows * n, 0.0);
-        let step = 1.0 / n as f64;
+        depth.resize(cols * n * rows * n, 0.0);
         for &k in self.bins.cell(i0 / self.tile, j0 / self.tile) {
-            let t = &self.projected[k as usize];
-            // The region's pixels the facet's bounding box reaches (a pixel at or past `hi`
-            // has every sample past it).
-            let (x0, x1) = pixel_span(t.lo.x, t.hi.x, i0, cols);
-            let (y0, y1) = pixel_span(t.lo.y, t.hi.y, j0, rows);
-            if x0 > x1 || y0 > y1 {
-                continue;
-            }
-            let [e0, e1, e2] = t.edges;
-            for j in y0..=y1 {
-                for i in x0..=x1 {
-                    // Its samples lie inside the pixel: none is on the facet where the
-                    // facet misses the pixel (most pixels of its box).
-                    if t.misses_pixel(i as f64, j as f64) {
-                        continue;
-                    }
-                    for b in 0..n {
-                        let y = j as f64 + (b as f64 + 0.5) * step;
-                        let row = ((j - j0) * n + b) * width;
-                        for a in 0..n {
-                            let q = DVec2::new(i as f64 + (a as f64 + 0.5) * step, y);
-                            // Barycentric weights (times the doubled area).
-                            let w0 = e0[0] * q.x + e0[1] * q.y + e0[2];
-                            let w1 = e1[0] * q.x + e1[1] * q.y + e1[2];
-                            let w2 = e2[0] * q.x + e2[1] * q.y + e2[2];
-                            if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
-                                continue;
-                            }
-                            let inv_z = w0 * t.inv_z[0] + w1 * t.inv_z[1] + w2 * t.inv_z[2];
-                            let s = row + (i - i0) * n + a;
-                            if inv_z > depth[s] {
-                                depth[s] = inv_z;
-                                facet[s] = if w0 == 0.0 || w1 == 0.0 || w2 == 0.0 {
-                                    UNDECIDED
-                                } else {
-                                    t.facet
-                                };
-                            }
+            self.fill_facet(k, (i0, j0), (cols, rows), n, facet, depth);
+        }
+    }
+
+    /// [`Rasteriser::fill`] for the one pixel `(i, j)` whose `fragments` are known
+    /// ([`Rasteriser::tile_fragments`]): only their facets are rasterised (a sample inside
+    /// the pixel lies on no other's interior).
+    pub fn fill_pixel(
+        &self,
+        (i, j): (usize, usize),
+        n: usize,
+        fragments: &[Fragment],
+        facet: &mut Vec<u32>,
+        depth: &mut Vec<f64>,
+    ) {
+        facet.clear();
+        facet.resize(n * n, NONE);
+        depth.clear();
+        depth.resize(n * n, 0.0);
+        for f in fragments {
+            self.fill_facet(f.projected, (i, j), (1, 1), n, facet, depth);
+        }
+    }
+
+    /// The `k`-th projected facet's samples in the region of [`Rasteriser::fill`], kept where
+    /// it is nearer than what `depth` holds (`1/z`).
+    #[inline]
+    fn fill_facet(
+        &self,
+        k: u32,
+        (i0, j0): (usize, usize),
+        (cols, rows): (usize, usize),
+        n: usize,
+        facet: &mut [u32],
+        depth: &mut [f64],
+    ) {
+        let width = cols * n;
+        let step = 1.0 / n as f64;
+        let t = &self.projected[k as usize];
+        // The region's pixels the facet's bounding box reaches (a pixel at or past `hi`
+        // has every sample past it).
+        let (x0, x1) = pixel_span(t.lo.x, t.hi.x, i0, cols);
+        let (y0, y1) = pixel_span(t.lo.y, t.hi.y, j0, rows);
+        if x0 > x1 || y0 > y1 {
+            return;
+        }
+        let [e0, e1, e2] = t.edges;
+        for j in y0..=y1 {
+            for i in x0..=x1 {
+                // Its samples lie inside the pixel: none is on the facet where the
+                // facet misses the pixel (most pixels of its box).
+                if t.misses_pixel(i as f64, j as f64) {
+                    continue;
+                }
+                for b in 0..n {
+                    let y = j as f64 + (b as f64 + 0.5) * step;
+                    let row = ((j - j0) * n + b) * width;
+                    for a in 0..n {
+                        let q = DVec2::new(i as f64 + (a as f64 + 0.5) * step, y);
+                        // Barycentric weights (times the doubled area).
+                        let w0 = e0[0] * q.x + e0[1] * q.y + e0[2];
+                        let w1 = e1[0] * q.x + e1[1] * q.y + e1[2];
+                        let w2 = e2[0] * q.x + e2[1] * q.y + e2[2];
+                        if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
+                            continue;
+                        }
+                        let inv_z = w0 * t.inv_z[0] + w1 * t.inv_z[1] + w2 * t.inv_z[2];
+                        let s = row + (i - i0) * n + a;
+                        if inv_z > depth[s] {
+                            depth[s] = inv_z;
+                            facet[s] = if w0 == 0.0 || w1 == 0.0 || w2 == 0.0 {
+                                UNDECIDED
+                            } else {
+                                t.facet
+                            };
                         }
                     }
                 }

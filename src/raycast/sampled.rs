@@ -26,11 +26,11 @@
 //! light's variation within a facet) and is not cast again as an edge. At the limb a pixel
 //! partly covered is tiled the same way when no two of its fragments overlap (what they
 //! leave uncovered is then where lines of sight miss the body); folds (two fronts over one
-//! point) are sampled as before, and every fold with light in its neighbourhood is cast again
-//! with the edge's rays: the light steps from facet to facet inside it, and one ray read one
-//! facet's light for all of it (on Bennu 42 px across, facets 2 px, such pixels were 5-18 %
-//! off and held the 99th percentile at 5.5e-2 whatever the edge's rays: now 1.7e-2 at 16 per
-//! side, 2.1e-3 at 64). A tiled pixel's coverage is exact, so it is cast again only where lit
+//! point) are cast at once with the edges' rays, their samples' facets rasterised from the
+//! pixel's own fragments ([`raster::Rasteriser::fill_pixel`]): the light steps from facet to
+//! facet inside a fold, and one ray read one facet's light for all of it (on Bennu 42 px
+//! across, facets 2 px, such pixels were 5-18 % off and held the 99th percentile at 5.5e-2
+//! whatever the edges' rays: now 1.7e-2 at 16 per side, 2.1e-3 at 64). A tiled pixel's coverage is exact, so it is cast again only where lit
 //! and dark meet in its neighbourhood (a shadow's edge, the terminator), not for the limb
 //! beside it; a pixel that no front covers at all is exact and casts nothing.
 //!
@@ -59,6 +59,9 @@ const LIT: u8 = 4;
 const SAMPLED: u8 = 0;
 const TILED: u8 = 1;
 const EXACT: u8 = 2;
+/// A fold (two fronts over one point), cast in the first pass with the edges' rays: never
+/// cast again.
+const FOLD: u8 = 3;
 
 /// The first facet at each sample of a region of pixels ([`super::raster`]): the region's
 /// buffer, the index in it of a pixel's sample `(0, 0)`, and its row stride.
@@ -199,6 +202,7 @@ pub fn render(
         None => Tracer::new(scene, pose),
     };
     let n = settings.raycast_samples;
+    let edge_n = settings.raycast_edge_samples.max(n);
     // A mesh body alone through a pinhole: the first facet of every line of sight by
     // rasterisation, so that only shadow rays (and undecided samples) go through the BVH.
     let rasteriser = tracer.rasteriser(TILE);
@@ -256,8 +260,6 @@ pub fn render(
                         continue;
                     }
                     let cols = TILE.min(w - u0);
-                    let nn = n as usize;
-                    let mut filled = false;
                     if let Some(r) = &rasteriser {
                         r.tile_fragments((u0, v0), (cols, rows), tile_fragments);
                     }
@@ -290,16 +292,26 @@ pub fn render(
                                     rays += fragments.len() as u64;
                                     continue;
                                 }
-                                if !filled {
-                                    r.fill((u0, v0), (cols, rows), nn, facets, scratch);
-                                    filled = true;
-                                }
+                                // A fold: cast at once with the edges' rays, its samples'
+                                // facets from its own fragments.
+                                let ne = edge_n as usize;
+                                r.fill_pixel((i, v0 + j), ne, fragments, facets, scratch);
+                                let seen = Some((&facets[..], 0, ne));
+                                let (v, d, c, r) = cast_pixel(
+                                    &tracer,
+                                    lights,
+                                    i as f64,
+                                    (v0 + j) as f64,
+                                    edge_n,
+                                    seen,
+                                );
+                                (pl[p], class[p], state[p]) = (v, c, FOLD);
+                                keep_depth(depth, p, d);
+                                rays += r;
+                                continue;
                             }
-                            let seen = rasteriser.as_ref().map(|_| {
-                                (&facets[..], (j * nn) * cols * nn + (i - u0) * nn, cols * nn)
-                            });
                             let (v, d, c, r) =
-                                cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, seen);
+                                cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, None);
                             (pl[p], class[p], state[p]) = (v, c, SAMPLED);
                             keep_depth(depth, p, d);
                             rays += r;
@@ -313,9 +325,8 @@ pub fn render(
     let t_first = t0.elapsed();
     // Pixels where the light changes: their own class or a neighbour's differs. A tiled
     // pixel's coverage is exact: there only a change between lit and dark counts (a shadow's
-    // or the terminator's edge), not the limb beside it. A pixel the rasteriser could not
-    // tile holds a fold (two fronts over one point), whose few rays cannot tell which facets'
-    // light fills how much of it: it is cast again wherever light is near.
+    // or the terminator's edge), not the limb beside it. A fold was cast with the edges'
+    // rays already.
     let mixed = |p: usize| {
         let (i, j) = (p % w, p / w);
         let (x0, x1) = (i.saturating_sub(1), (i + 1).min(w - 1));
@@ -327,14 +338,10 @@ pub fn render(
         }
         if state[p] == TILED {
             mask & (LIT | DARK) == LIT | DARK
-        } else if rasteriser.is_some() {
-            // A fold: the light steps between its facets, which its own rays need not tell.
-            mask & LIT != 0
         } else {
             mask.count_ones() > 1
         }
     };
-    let edge_n = settings.raycast_edge_samples.max(n);
     let edges: Vec<usize> = if edge_n > n {
         // Only pixels cast by samples or tiled with shadows may be cast again (every other
         // pixel is exact, those of tiles that cast nothing included): a scan of their states.
@@ -346,7 +353,7 @@ pub fn render(
                 states
                     .iter()
                     .enumerate()
-                    .filter(|&(_, &s)| s != EXACT)
+                    .filter(|&(_, &s)| s == SAMPLED || s == TILED)
                     .map(move |(k, _)| first + k)
                     .filter(|&p| mixed(p))
             })

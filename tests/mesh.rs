@@ -180,8 +180,9 @@ fn hits_and_shadows_equal_a_brute_force_search_on_itokawa() {
 }
 
 /// The rasteriser's first facet at every sample equals the brute-force search's (or the
-/// sample is left to the BVH), and a line of sight sent onto that facet brings back what the
-/// BVH's cast does.
+/// sample is left to the BVH), the same whether a pixel's samples are rasterised against its
+/// tile's facets or its own fragments' (a fold's), and a line of sight sent onto that facet
+/// brings back what the BVH's cast does.
 #[test]
 fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
     for (name, d) in [("itokawa_8.obj", 1300.0), ("bennu_12k.obj", 1000.0)] {
@@ -216,6 +217,26 @@ fn rasterised_first_facets_equal_a_brute_force_search_on_itokawa_and_bennu() {
             for (k, &f) in part.iter().enumerate() {
                 assert_eq!(f, buf[(21 * n + k / n) * 80 * n + 37 * n + k % n]);
             }
+            // Every pixel's samples from its own fragments alone (how a fold is cast).
+            let mut fragments = optistim::raycast::raster::TileFragments::default();
+            let mut pixels = 0;
+            for (ty, tx) in (0..8).flat_map(|ty| (0..10).map(move |tx| (ty, tx))) {
+                tiled.tile_fragments((tx * 8, ty * 8), (8, 8), &mut fragments);
+                for local in 0..64 {
+                    let (i, j) = (tx * 8 + local % 8, ty * 8 + local / 8);
+                    let own = fragments.of(local);
+                    if own.is_empty() {
+                        continue;
+                    }
+                    pixels += 1;
+                    tiled.fill_pixel((i, j), n, own, &mut part, &mut scratch);
+                    for (k, &f) in part.iter().enumerate() {
+                        let at = (j * n + k / n) * 80 * n + i * n + k % n;
+                        assert_eq!(f, buf[at], "{name} pixel {i},{j} sample {k}");
+                    }
+                }
+            }
+            assert!(pixels > 1000, "{pixels}");
             let (mut seen, mut undecided, mut other_facet) = (0, 0, 0);
             for j in 0..64 {
                 for i in 0..80 {

@@ -19,9 +19,10 @@
 //! never interpolated: its texels are not smooth). Measured on `config/bennu.toml` against the
 //! exact evaluation (`tests/mesh.rs`): at 41 deg of phase 99 % of the lit pixels are
 //! interpolated (some of the smaller facets linearly, below), the worst of them 5.0e-6 off,
-//! the total 5.8e-11; at zero phase 36 %, 8.4e-6 and 2.8e-9. Shadows are not interpolated: where a facet is not lit all over
-//! ([`super::sun_grid`]) every sample still casts its shadow ray, and the interpolated light
-//! is what a lit sample gets. The depth is cast as before, bit for bit.
+//! the total 5.8e-11; at zero phase 36 %, 8.4e-6 and 2.8e-9. Shadows are not interpolated:
+//! where a facet is not lit all over ([`super::sun_grid`]) every sample still casts its
+//! shadow ray, and the interpolated light is what a lit sample gets. The depth is cast as
+//! before, bit for bit.
 //!
 //! A facet whose image is smaller, down to [`MIN_LINEAR_AREA_PX2`], is read from a linear
 //! element on its three corners (its midpoints' values the means of their corners', so
@@ -32,7 +33,7 @@
 //! ([`super::sampled`]); its element costs 4 evaluations. On the 200,000-facet body of
 //! `python/benches/bumpy_200k.toml` (facets 0.4-5.8 px^2, median 2.3) 60,205 of 79,102
 //! projected facets are read from elements, the frame is 1.26 times faster (interleaved,
-//! 216 -> 171 ms), and against the exact evaluation the lit pixels move by 9.4e-7 at the
+//! 226 -> 179 ms), and against the exact evaluation the lit pixels move by 9.4e-7 at the
 //! median, 1.5e-5 at worst, the total by 6.7e-7 (without the bubble: 4.5e-6, 1.8e-5, -4.6e-6).
 //!
 //! On `config/bennu.toml` this takes the BRDF out of the frame's profile (12 % of it, and the

@@ -30,9 +30,10 @@
 //! pixel's own fragments ([`raster::Rasteriser::fill_pixel`]): the light steps from facet to
 //! facet inside a fold, and one ray read one facet's light for all of it (on Bennu 42 px
 //! across, facets 2 px, such pixels were 5-18 % off and held the 99th percentile at 5.5e-2
-//! whatever the edges' rays: now 1.7e-2 at 16 per side, 2.1e-3 at 64). A tiled pixel's coverage is exact, so it is cast again only where lit
-//! and dark meet in its neighbourhood (a shadow's edge, the terminator), not for the limb
-//! beside it; a pixel that no front covers at all is exact and casts nothing.
+//! whatever the edges' rays: now 1.7e-2 at 16 per side, 2.1e-3 at 64). A tiled pixel's
+//! coverage is exact, so it is cast again only where lit and dark meet in its neighbourhood
+//! (a shadow's edge, the terminator), not for the limb beside it; a pixel that no front
+//! covers at all is exact and casts nothing.
 //!
 //! Each pixel is cast by one thread in a fixed order: the same scene, pose and settings give
 //! the same image, bit for bit, whatever the thread count.

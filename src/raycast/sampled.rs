@@ -407,7 +407,8 @@ pub fn render(
             .acos()
             .to_degrees(),
         points_sampled: w * h,
-        points_kept: edges.len(),
+        // The pixels cast with the edges' rays: the edges and the folds.
+        points_kept: edges.len() + state.par_iter().filter(|&&s| s == FOLD).count(),
         surface_samples: rays as usize,
         covered_px: covered_px as f64,
         total_pl_points: total,

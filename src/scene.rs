@@ -27,6 +27,12 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// Whether the ray caster renders this scene ([`crate::raycast::sampled`]): a mesh body,
+    /// or several bodies; else the quadrangle pipeline.
+    pub fn is_ray_cast(&self) -> bool {
+        !self.others.is_empty() || matches!(self.body.shape, crate::body::Shape::Mesh(_))
+    }
+
     /// The signal factor of Eq. 45 of every band of the camera for light reflected by the
     /// body (its spectral shape inside each band's integral) [e- s^-1 per sr m^2 of (P/L)].
     pub fn band_factors(&self) -> Vec<f64> {

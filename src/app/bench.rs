@@ -51,6 +51,9 @@ pub struct FrameRow {
     /// `ms` includes the planning).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<crate::fidelity::budget::Plan>,
+    /// A ray-cast frame's own estimate of its error ([`crate::raycast::estimate`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimated_error: Option<crate::raycast::estimate::FrameEstimate>,
 }
 
 /// Renders up to `max_frames` poses of `trajectory` (default: the scene's own pose, 20 times)
@@ -87,9 +90,12 @@ pub fn run(
     let mut stage_sum = serde_json::Map::new();
     for (t_s, pose) in poses.iter().take(n) {
         let t0 = Instant::now();
-        let plan = planner.as_ref().map(|p| p.plan(&config.scene, pose));
+        let mut plan = planner.as_ref().map(|p| p.plan(&config.scene, pose));
         let settings = plan.as_ref().map_or(&config.settings, |p| &p.settings);
         let frame = renderer.render(&config.scene, pose, settings)?;
+        if let Some(p) = plan.as_mut() {
+            p.observe(&frame.stats);
+        }
         let td = Instant::now();
         let size = (frame.width, frame.height);
         let band = |b| frame.band(b);
@@ -118,6 +124,7 @@ pub fn run(
             timings_ms: frame.stats.timings_ms,
             detector_ms,
             fidelity: plan,
+            estimated_error: frame.stats.estimated_error,
         });
         times.push((ms, pose.frame_id));
         points.push(frame.stats.points_kept);

@@ -103,8 +103,11 @@ pub fn make(
     pose: &Pose,
     renderer: &mut Renderer,
 ) -> Result<(FrameMeta, ImageSet), AppError> {
-    let (settings, plan) = settings_for(config, planner, pose);
+    let (settings, mut plan) = settings_for(config, planner, pose);
     let frame = renderer.render(&config.scene, pose, &settings)?;
+    if let Some(p) = plan.as_mut() {
+        p.observe(&frame.stats);
+    }
     Ok(detect(config, pose, frame, settings, plan))
 }
 
@@ -172,6 +175,18 @@ pub fn cards(config: &Config, meta: &FrameMeta) -> Vec<Card> {
     c.extend(band_cards(config, meta));
     if let Some(p) = &meta.plan {
         c.extend(plan_cards(p));
+    }
+    if let Some(e) = meta.stats.estimated_error {
+        let f = |k: &str, v: f64, what: &str| Card::new(k, Value::Float(v), what);
+        c.extend([
+            f(
+                "ESTMED",
+                e.median,
+                "frame's own est. median rel. error/lit px",
+            ),
+            f("ESTP99", e.p99, "frame's own est. p99 rel. error/lit px"),
+            f("ESTTOT", e.total, "frame's own est. total rel. error"),
+        ]);
     }
     c
 }
@@ -378,6 +393,11 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
             "settings chosen per frame",
         ),
         f("PPP", p.points_per_pixel, "chosen: quadrangles per pixel"),
+        Card::new(
+            "EDGERAYS",
+            Value::Int(p.raycast_edge_samples as i64),
+            "chosen: first rays/px side at edges (ray cast)",
+        ),
         Card::new(
             "BNODES",
             Value::Int(p.boundary_nodes as i64),

@@ -52,6 +52,9 @@ pub struct RenderSummary {
     /// With `fidelity = "budget"`: the settings chosen and the error predicted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<Plan>,
+    /// A ray-cast frame's own estimate of its error ([`crate::raycast::estimate`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimated_error: Option<crate::raycast::estimate::FrameEstimate>,
     /// A mesh body's load report (what was repaired, the BVH's build time and bytes).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mesh: Option<crate::body::mesh::MeshReport>,
@@ -215,6 +218,7 @@ pub fn run(
         reference: reference.map(|r| r.1),
         stimulator,
         fidelity: meta.plan,
+        estimated_error: meta.stats.estimated_error,
         mesh: match &config.scene.body.shape {
             crate::body::Shape::Mesh(m) => Some(m.report().clone()),
             _ => None,

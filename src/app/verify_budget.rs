@@ -3,7 +3,9 @@
 //!
 //! For `N` frames spread evenly over the whole stream it renders
 //! - the frame as `fidelity = "budget"` plans it (the planning timed with it),
-//! - every rung of the planner's ladder as a fixed setting (with the scene's own shadows),
+//! - every rung of the planner's ladder as a fixed setting (with the scene's own shadows); for
+//!   a ray-cast scene (a mesh, several bodies), whose frames refine their edges to the budget
+//!   themselves, each of 4 to 64 rays per side at the edges ([`fixed_ladder`]),
 //! - the reference ([`crate::raycast::reference`], cached in `DIR/references`),
 //!
 //! and writes `frames.csv` (per frame: the plan, its prediction, its measured error and time,
@@ -12,14 +14,17 @@
 //! every frame, and the planner's speed-up over that rung (median and slowest frame). A
 //! frame whose reference is not converged within the budget (its own error estimate, p99 or
 //! total, above it: a crescent a pixel or two thick) cannot be judged: it is counted apart,
-//! and the shares of verifiable frames and the fixed rung leave it out.
+//! and the shares of verifiable frames and the fixed rung leave it out. Each figure is also
+//! judged on its own where the reference is converged for it: a reference at a tolerance of
+//! 1e-3 per pixel (a mesh's takes tens of seconds at that) bounds its own total only to
+//! about 1e-3, above the budget's 1e-4, but its 99th percentile well within 3e-2.
 
 use super::AppError;
 use crate::config::Config;
 use crate::fidelity::budget::{Budget, LADDER, Planner};
 use crate::fidelity::metrics::{FrameError, frame_error};
 use crate::raycast::reference::ReferenceSettings;
-use crate::render::Renderer;
+use crate::render::{Renderer, Settings};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -32,6 +37,8 @@ pub struct FrameCheck {
     pub range_m: f64,
     pub phase_deg: f64,
     pub points_per_pixel: f64,
+    /// Ray-cast frames: the rays cast (the budget's refinement included).
+    pub rays: usize,
     pub self_shadowing: String,
     pub predicted_median: f64,
     pub predicted_p99: f64,
@@ -47,6 +54,9 @@ pub struct FrameCheck {
     /// Whether the reference's own error estimate (p99 and total) is within the budget, so
     /// that the frame can be judged against it.
     pub verifiable: bool,
+    /// The same, for the p99 and for the total alone.
+    pub verifiable_p99: bool,
+    pub verifiable_total: bool,
     /// Per rung of the ladder: time [ms] and whether it met the budget.
     pub rung_ms: String,
     pub rung_meets: String,
@@ -67,16 +77,50 @@ pub struct VerifyReport {
     pub frames_unverifiable: usize,
     pub share_of_verifiable_meeting_p99_and_total: f64,
     pub share_of_verifiable_meeting_all: f64,
+    /// Each figure judged where the reference is converged for it: the frames, and the share
+    /// of them meeting it.
+    pub frames_p99_verifiable: usize,
+    pub share_meeting_p99_where_verifiable: f64,
+    pub frames_total_verifiable: usize,
+    pub share_meeting_total_where_verifiable: f64,
     pub share_predicted_to_meet: f64,
     pub budget_median_ms: f64,
     pub budget_max_ms: f64,
-    /// The cheapest rung meeting the budget on every frame (`None`: no rung does).
+    /// The cheapest rung meeting the budget on every frame (`None`: no rung does), and its
+    /// quadrangles per pixel (quadrangle scenes).
+    pub fixed_rung: Option<String>,
     pub fixed_rung_points_per_pixel: Option<f64>,
     pub fixed_median_ms: f64,
     pub fixed_max_ms: f64,
     pub speedup_median: f64,
     pub speedup_slowest: f64,
     pub csv: String,
+}
+
+/// The fixed settings the planner is measured against, cheapest first, with their names:
+/// the ladder's rungs, or, for a ray-cast scene, 4 to 64 rays per side at the edges.
+pub fn fixed_ladder(config: &Config) -> Vec<(String, Settings, Option<f64>)> {
+    if config.scene.is_ray_cast() {
+        [4, 8, 16, 32, 64]
+            .into_iter()
+            .map(|n| {
+                let s = Settings {
+                    raycast_edge_samples: n,
+                    raycast_budget: None,
+                    ..config.settings.clone()
+                };
+                (format!("raycast_edge_samples = {n}"), s, None)
+            })
+            .collect()
+    } else {
+        LADDER
+            .iter()
+            .map(|&ppp| {
+                let s = Planner::rung(&config.settings, ppp);
+                (format!("points_per_pixel = {ppp}"), s, Some(ppp))
+            })
+            .collect()
+    }
 }
 
 fn meets(e: &FrameError, b: &Budget) -> (bool, bool) {
@@ -123,13 +167,15 @@ pub fn run(
     let mut renderer = Renderer::new(config.settings.threads)?;
     let scene_text = std::fs::read_to_string(scene_label).unwrap_or_else(|_| scene_label.into());
     let mut checks = Vec::new();
-    let mut rung_times = vec![Vec::new(); LADDER.len()];
-    let mut rung_ok = vec![true; LADDER.len()];
+    let ladder = fixed_ladder(config);
+    let mut rung_times = vec![Vec::new(); ladder.len()];
+    let mut rung_ok = vec![true; ladder.len()];
     for &row in &rows {
         let pose = poses[row].1;
         let t0 = Instant::now();
-        let plan = planner.plan(&config.scene, &pose);
+        let mut plan = planner.plan(&config.scene, &pose);
         let frame = renderer.render(&config.scene, &pose, &plan.settings)?;
+        plan.observe(&frame.stats);
         let budget_ms = t0.elapsed().as_secs_f64() * 1e3;
         let (reference_pl, ref_s, ref_total, ref_p99, _) = super::sweep::cached_reference(
             &scene_text,
@@ -139,17 +185,21 @@ pub fn run(
             &out.join("references"),
         )?;
         let e = frame_error(&frame.pl, &reference_pl, w, h);
-        let verifiable = ref_p99 <= budget.p99 && ref_total <= budget.total;
+        let (ver_p99, ver_total) = (ref_p99 <= budget.p99, ref_total <= budget.total);
+        let verifiable = ver_p99 && ver_total;
         let (tails, all) = meets(&e, &budget);
         let (mut ms_s, mut ok_s) = (Vec::new(), Vec::new());
-        for (k, &ppp) in LADDER.iter().enumerate() {
-            let s = Planner::rung(&config.settings, ppp);
+        for (k, (_, s, _)) in ladder.iter().enumerate() {
             let t0 = Instant::now();
-            let f = renderer.render(&config.scene, &pose, &s)?;
+            let f = renderer.render(&config.scene, &pose, s)?;
             let ms = t0.elapsed().as_secs_f64() * 1e3;
-            let (t, _) = meets(&frame_error(&f.pl, &reference_pl, w, h), &budget);
+            let ef = frame_error(&f.pl, &reference_pl, w, h);
+            let (t, _) = meets(&ef, &budget);
             rung_times[k].push(ms);
-            rung_ok[k] &= t || !verifiable;
+            rung_ok[k] &= t
+                || (!verifiable
+                    && (ef.p99 <= budget.p99 || !ver_p99)
+                    && (ef.total <= budget.total || !ver_total));
             ms_s.push(format!("{ms:.1}"));
             ok_s.push(if t { "1" } else { "0" });
         }
@@ -159,6 +209,7 @@ pub fn run(
             range_m: pose.camera_position_m.length(),
             phase_deg: plan.features.phase_deg,
             points_per_pixel: plan.points_per_pixel,
+            rays: frame.stats.surface_samples,
             self_shadowing: format!("{:?}", plan.self_shadowing),
             predicted_median: plan.predicted.median,
             predicted_p99: plan.predicted.p99,
@@ -172,6 +223,8 @@ pub fn run(
             reference_est_p99: ref_p99,
             reference_est_total: ref_total,
             verifiable,
+            verifiable_p99: ver_p99,
+            verifiable_total: ver_total,
             rung_ms: ms_s.join(" "),
             rung_meets: ok_s.join(" "),
         };
@@ -187,7 +240,11 @@ pub fn run(
             c.predicted_median,
             c.predicted_p99,
             c.predicted_total,
-            if !verifiable {
+            if !verifiable && ver_p99 && e.p99 <= budget.p99 {
+                " (p99 within the budget; the reference's own total is above the budget's)"
+            } else if !verifiable && ver_p99 {
+                " P99 OVER BUDGET (the reference's own total is above the budget's)"
+            } else if !verifiable {
                 " (reference not converged within the budget)"
             } else if all {
                 ""
@@ -213,6 +270,11 @@ pub fn run(
         let v: Vec<_> = checks.iter().filter(|c| c.0.verifiable).collect();
         v.iter().filter(|c| f(c)).count() as f64 / v.len() as f64
     };
+    let share_where = |judged: &dyn Fn(&(FrameCheck, bool)) -> bool,
+                       f: &dyn Fn(&(FrameCheck, bool)) -> bool| {
+        let v: Vec<_> = checks.iter().filter(|c| judged(c)).collect();
+        v.iter().filter(|c| f(c)).count() as f64 / v.len() as f64
+    };
     let mut times: Vec<f64> = checks.iter().map(|c| c.0.budget_ms).collect();
     let [b_med, b_max] = crate::stats::quantiles(&mut times, [0.5, 1.0]);
     let fixed = rung_ok.iter().position(|&ok| ok);
@@ -230,6 +292,14 @@ pub fn run(
         frames_unverifiable: checks.iter().filter(|c| !c.0.verifiable).count(),
         share_of_verifiable_meeting_p99_and_total: share_of_verifiable(&|c| c.0.meets_budget),
         share_of_verifiable_meeting_all: share_of_verifiable(&|c| c.1),
+        frames_p99_verifiable: checks.iter().filter(|c| c.0.verifiable_p99).count(),
+        share_meeting_p99_where_verifiable: share_where(&|c| c.0.verifiable_p99, &|c| {
+            c.0.p99 <= budget.p99
+        }),
+        frames_total_verifiable: checks.iter().filter(|c| c.0.verifiable_total).count(),
+        share_meeting_total_where_verifiable: share_where(&|c| c.0.verifiable_total, &|c| {
+            c.0.total <= budget.total
+        }),
         share_predicted_to_meet: share(&|c| {
             c.0.predicted_median <= budget.median
                 && c.0.predicted_p99 <= budget.p99
@@ -237,7 +307,8 @@ pub fn run(
         }),
         budget_median_ms: b_med,
         budget_max_ms: b_max,
-        fixed_rung_points_per_pixel: fixed.map(|k| LADDER[k]),
+        fixed_rung: fixed.map(|k| ladder[k].0.clone()),
+        fixed_rung_points_per_pixel: fixed.and_then(|k| ladder[k].2),
         fixed_median_ms: f_med,
         fixed_max_ms: f_max,
         speedup_median: f_med / b_med,

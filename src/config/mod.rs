@@ -273,14 +273,6 @@ impl Validator<'_> {
             None => None,
         };
         let fidelity = self.fidelity(&raw.render)?;
-        if fidelity.is_some() && (matches!(body.shape, Shape::Mesh(_)) || !others.is_empty()) {
-            return self.err(
-                "render.fidelity",
-                "budget",
-                "fixed for a mesh or several bodies: the error model is fitted on the \
-                 quadrangle pipeline, and ray-cast frames have none yet",
-            );
-        }
         let corto_metres_per_unit = match &raw.corto {
             Some(c) => Some(self.positive("corto.metres_per_unit", c.metres_per_unit)?),
             None => None,

@@ -152,9 +152,12 @@ impl FrameMaker {
         let mut t = FrameTimings::default();
         let t0 = Instant::now();
         let cfg = &self.config;
-        let plan = self.planner.as_ref().map(|p| p.plan(&cfg.scene, pose));
+        let mut plan = self.planner.as_ref().map(|p| p.plan(&cfg.scene, pose));
         let settings = plan.as_ref().map_or(&cfg.settings, |p| &p.settings);
         let frame = self.renderer.render(&cfg.scene, pose, settings)?;
+        if let Some(p) = plan.as_mut() {
+            p.observe(&frame.stats);
+        }
         t.render = ms(t0);
         let t0 = Instant::now();
         // Eq. 45 per band: one plane per band (each band's own image when its distortion

@@ -20,6 +20,7 @@
 //! coordinates `dx dy = du dv / (f_u f_v det J_Brown(x, y))` (Eqs. 39-40).
 
 mod bins;
+pub mod estimate;
 pub mod facet_light;
 pub mod raster;
 pub mod reference;

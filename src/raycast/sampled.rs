@@ -64,6 +64,21 @@ const EXACT: u8 = 2;
 /// cast again.
 const FOLD: u8 = 3;
 
+/// With `render.raycast_budget`: the most rays per pixel side, and rounds of refinement.
+const MAX_SAMPLES: u32 = 64;
+const MAX_REFINEMENTS: usize = 8;
+
+/// The rays per side a pixel refined from `n` is cast again with: `sqrt 2` times as many
+/// (twice the rays; 8, 11, 16, 23, 32, 45, 64), so that a pixel needing 17 gets 23, not 32.
+fn refined_n(n: u32) -> u32 {
+    ((n as f64 * std::f64::consts::SQRT_2).round() as u32).clamp(n + 1, MAX_SAMPLES)
+}
+
+/// The `(pixel, estimated error)` pairs of `(pixel, error, rays per side)`.
+fn pairs(sampled: &[(usize, f64, u32)]) -> Vec<(usize, f64)> {
+    sampled.iter().map(|&(p, e, _)| (p, e)).collect()
+}
+
 /// The first facet at each sample of a region of pixels ([`super::raster`]): the region's
 /// buffer, the index in it of a pixel's sample `(0, 0)`, and its row stride.
 type Seen<'a> = (&'a [u32], usize, usize);
@@ -136,9 +151,24 @@ fn filled<T: Copy + Send + Sync>(value: T, len: usize) -> Vec<T> {
     v
 }
 
-/// One pixel cast `n x n` times: the mean `(P/L)` per px^2 (its `(P/L)`), the mean range of
-/// the rays that met the body [m] (NaN for none), the classes met, the rays cast. With
-/// `seen`, the first facet at each of its samples.
+/// What one pixel's rays gave ([`cast_pixel`]).
+#[derive(Clone, Copy, Debug)]
+struct Cast {
+    /// The mean `(P/L)` per px^2 (the pixel's `(P/L)`).
+    pl: f64,
+    /// The mean range of the rays that met the body [m] (NaN for none).
+    depth: f64,
+    /// The classes met.
+    mask: u8,
+    rays: u64,
+    /// The estimated error of `pl` (same unit; NaN under 2 rays per side): the standard
+    /// error of the means of the four interleaved half-resolution grids the `n x n` grid
+    /// holds (rays of even or odd column and row), whose mean `pl` is ([`super::estimate`]).
+    err: f64,
+}
+
+/// One pixel cast `n x n` times ([`Cast`]). With `seen`, the first facet at each of its
+/// samples.
 fn cast_pixel(
     tracer: &Tracer,
     lights: Lights,
@@ -146,9 +176,11 @@ fn cast_pixel(
     v0: f64,
     n: u32,
     seen: Option<Seen>,
-) -> (f64, f64, u8, u64) {
+) -> Cast {
     let step = 1.0 / n as f64;
-    let (mut sum, mut range, mut hits, mut mask) = (0.0, 0.0, 0u32, 0u8);
+    let (mut range, mut hits, mut mask) = (0.0, 0u32, 0u8);
+    // Sums of the four interleaved grids, by (row parity, column parity).
+    let mut sub = [0.0f64; 4];
     for j in 0..n {
         let v = v0 + (j as f64 + 0.5) * step;
         for i in 0..n {
@@ -169,7 +201,7 @@ fn cast_pixel(
             range += h.range_m;
             if h.pl_per_px2 > 0.0 {
                 mask |= LIT;
-                sum += h.pl_per_px2;
+                sub[((j & 1) * 2 + (i & 1)) as usize] += h.pl_per_px2;
             } else {
                 mask |= DARK;
             }
@@ -181,7 +213,14 @@ fn cast_pixel(
     } else {
         f64::NAN
     };
-    (sum / rays as f64, depth, mask, rays)
+    let pl = sub.iter().sum::<f64>() / rays as f64;
+    Cast {
+        pl,
+        depth,
+        mask,
+        rays,
+        err: super::estimate::pixel_error(&sub, n),
+    }
 }
 
 /// Renders the `(P/L)` image of `scene` from `pose` by sampled ray casting, in the calling
@@ -202,11 +241,16 @@ pub fn render(
         Some((r, rho)) => Tracer::new(scene, pose).with_scattered(r, rho),
         None => Tracer::new(scene, pose),
     };
-    let n = settings.raycast_samples;
-    let edge_n = settings.raycast_edge_samples.max(n);
     // A mesh body alone through a pinhole: the first facet of every line of sight by
     // rasterisation, so that only shadow rays (and undecided samples) go through the BVH.
     let rasteriser = tracer.rasteriser(TILE);
+    // With a budget, every pixel cast by samples has its error estimated: 2 rays per side
+    // at least.
+    let n = match (&settings.raycast_budget, &rasteriser) {
+        (Some(_), None) => settings.raycast_samples.max(2),
+        _ => settings.raycast_samples,
+    };
+    let edge_n = settings.raycast_edge_samples.max(n);
     // Large facets' light from a quadratic over their image.
     let lights = match (&rasteriser, &scene.body.shape) {
         (Some(r), crate::body::Shape::Mesh(m)) if settings.raycast_quadratic_light => {
@@ -244,7 +288,7 @@ pub fn render(
     } else {
         (0..h.div_ceil(TILE)).map(|_| &mut [][..]).collect()
     };
-    let first_rays: u64 = pl
+    let first: Vec<(u64, Vec<(usize, f64)>)> = pl
         .par_chunks_mut(TILE * w)
         .zip(depth_bands)
         .zip(class.par_chunks_mut(TILE * w))
@@ -255,6 +299,8 @@ pub fn render(
             |(facets, scratch, tile_fragments), (band, (((pl, depth), class), state))| {
                 let rows = pl.len() / w;
                 let mut rays = 0;
+                // The pixels cast with two rays or more per side, and their estimated errors.
+                let mut sampled = Vec::new();
                 for tile in 0..w.div_ceil(TILE) {
                     let (u0, v0) = (tile * TILE, band * TILE);
                     if !covered[band * tiles_w + tile] {
@@ -298,7 +344,7 @@ pub fn render(
                                 let ne = edge_n as usize;
                                 r.fill_pixel((i, v0 + j), ne, fragments, facets, scratch);
                                 let seen = Some((&facets[..], 0, ne));
-                                let (v, d, c, r) = cast_pixel(
+                                let c = cast_pixel(
                                     &tracer,
                                     lights,
                                     i as f64,
@@ -306,23 +352,27 @@ pub fn render(
                                     edge_n,
                                     seen,
                                 );
-                                (pl[p], class[p], state[p]) = (v, c, FOLD);
-                                keep_depth(depth, p, d);
-                                rays += r;
+                                (pl[p], class[p], state[p]) = (c.pl, c.mask, FOLD);
+                                keep_depth(depth, p, c.depth);
+                                rays += c.rays;
+                                sampled.push((band * TILE * w + p, c.err));
                                 continue;
                             }
-                            let (v, d, c, r) =
-                                cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, None);
-                            (pl[p], class[p], state[p]) = (v, c, SAMPLED);
-                            keep_depth(depth, p, d);
-                            rays += r;
+                            let c = cast_pixel(&tracer, lights, i as f64, (v0 + j) as f64, n, None);
+                            (pl[p], class[p], state[p]) = (c.pl, c.mask, SAMPLED);
+                            keep_depth(depth, p, c.depth);
+                            rays += c.rays;
+                            if c.mask != MISS {
+                                sampled.push((band * TILE * w + p, c.err));
+                            }
                         }
                     }
                 }
-                rays
+                (rays, sampled)
             },
         )
-        .sum();
+        .collect();
+    let first_rays: u64 = first.iter().map(|(r, _)| r).sum();
     let t_first = t0.elapsed();
     // Pixels where the light changes: their own class or a neighbour's differs. A tiled
     // pixel's coverage is exact: there only a change between lit and dark counts (a shadow's
@@ -362,26 +412,73 @@ pub fn render(
     } else {
         Vec::new()
     };
-    let refined: Vec<(f64, f64, u8, u64)> = edges
+    // Pixel `p` cast again with `n x n` rays.
+    let recast = |(facets, scratch): &mut (Vec<u32>, Vec<f64>), p: usize, n: u32| {
+        let (i, j) = (p % w, p / w);
+        if let Some(r) = &rasteriser {
+            r.fill((i, j), (1, 1), n as usize, facets, scratch);
+        }
+        let seen = rasteriser.as_ref().map(|_| (&facets[..], 0, n as usize));
+        cast_pixel(&tracer, lights, i as f64, j as f64, n, seen)
+    };
+    let refined: Vec<Cast> = edges
         .par_iter()
-        .map_init(
-            || (Vec::new(), Vec::new()),
-            |(facets, scratch), &p| {
-                let (i, j) = (p % w, p / w);
-                let nn = edge_n as usize;
-                if let Some(r) = &rasteriser {
-                    r.fill((i, j), (1, 1), nn, facets, scratch);
-                }
-                let seen = rasteriser.as_ref().map(|_| (&facets[..], 0, nn));
-                cast_pixel(&tracer, lights, i as f64, j as f64, edge_n, seen)
-            },
-        )
+        .map_init(|| (Vec::new(), Vec::new()), |s, &p| recast(s, p, edge_n))
         .collect();
     let mut rays = first_rays;
-    for (&p, r) in edges.iter().zip(&refined) {
-        pl[p] = r.0;
-        keep_depth(&mut depth, p, r.1);
-        rays += r.3;
+    for (&p, c) in edges.iter().zip(&refined) {
+        pl[p] = c.pl;
+        keep_depth(&mut depth, p, c.depth);
+        rays += c.rays;
+    }
+    // Every pixel cast with rays, with its estimated error and rays per side: the first
+    // pass's (the folds; every covered pixel without the rasteriser), the edges' casts
+    // replacing theirs.
+    let mut sampled: Vec<(usize, f64, u32)> = first
+        .into_iter()
+        .flat_map(|(_, s)| s)
+        .map(|(p, e)| (p, e, if state[p] == FOLD { edge_n } else { n }))
+        .collect();
+    sampled.extend(edges.iter().zip(&refined).map(|(&p, c)| (p, c.err, edge_n)));
+    sampled.sort_by_key(|&(p, _, _)| p); // stable: an edge's entry after its first pass's
+    let mut merged: Vec<(usize, f64, u32)> = Vec::with_capacity(sampled.len());
+    for x in sampled {
+        match merged.last_mut() {
+            Some(last) if last.0 == x.0 => *last = x,
+            _ => merged.push(x),
+        }
+    }
+    let has_estimate = !merged.iter().any(|(_, e, _)| e.is_nan());
+    // With a budget, the pixels whose estimated error keeps the frame from it are cast again
+    // with twice the rays ([`refined_n`]), until the estimate meets it or they reach
+    // MAX_SAMPLES.
+    if let Some(b) = settings.raycast_budget.filter(|_| has_estimate) {
+        let mut estimate = super::estimate::frame_estimate(&pl, &pairs(&merged));
+        for _ in 0..MAX_REFINEMENTS {
+            if estimate.p99 <= b.p99 && estimate.total <= b.total {
+                break;
+            }
+            let chosen = super::estimate::to_refine(&pl, &merged, b, MAX_SAMPLES);
+            if chosen.is_empty() {
+                break;
+            }
+            let again: Vec<Cast> = chosen
+                .par_iter()
+                .map_init(
+                    || (Vec::new(), Vec::new()),
+                    |s, &k| recast(s, merged[k].0, refined_n(merged[k].2)),
+                )
+                .collect();
+            for (&k, c) in chosen.iter().zip(&again) {
+                let p = merged[k].0;
+                pl[p] = c.pl;
+                keep_depth(&mut depth, p, c.depth);
+                rays += c.rays;
+                merged[k].1 = c.err;
+                merged[k].2 = refined_n(merged[k].2);
+            }
+            estimate = super::estimate::frame_estimate(&pl, &pairs(&merged));
+        }
     }
     // The total and the lit pixels, by fixed runs of pixels summed in order: the same bits
     // whatever the thread count.
@@ -397,6 +494,8 @@ pub fn render(
             value: total,
         });
     }
+    let estimated_error =
+        has_estimate.then(|| super::estimate::frame_estimate(&pl, &pairs(&merged)));
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
         phase_deg: pose
@@ -422,6 +521,7 @@ pub fn render(
             total: ms,
             ..Default::default()
         },
+        estimated_error,
         ..Default::default()
     };
     Ok(Frame {

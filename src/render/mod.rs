@@ -98,6 +98,10 @@ pub struct FrameStats {
     /// gridded (equal to `total_pl_image` unless `map_filter = "pixel"`).
     pub total_pl_gridded: f64,
     pub timings_ms: StageTimings,
+    /// The frame's own estimate of its error against the converged reference, where it has
+    /// one (ray-cast frames whose pixels are tiled or cast with 2 rays per side or more:
+    /// [`crate::raycast::estimate`]).
+    pub estimated_error: Option<crate::raycast::estimate::FrameEstimate>,
 }
 
 /// One rendered frame.

@@ -139,6 +139,10 @@ pub struct Settings {
     /// ([`crate::raycast::facet_light`]; kept per facet only where it reproduces the light to
     /// 1e-6 of the facet's brightest at the check points).
     pub raycast_quadratic_light: bool,
+    /// Ray-cast frames: the error to refine the edges' rays to (each pixel whose estimated
+    /// error keeps the frame from it cast again with twice the rays, up to 64 per side;
+    /// [`crate::raycast::estimate`]); `None`: `raycast_edge_samples` everywhere.
+    pub raycast_budget: Option<crate::raycast::estimate::RaycastBudget>,
     /// Mesh bodies: orders of light scattered between facets that enter the image (0: direct
     /// light only; [`crate::irradiance`]).
     pub scattering_orders: u32,
@@ -174,6 +178,7 @@ impl Default for Settings {
             raycast_samples: 1,
             raycast_edge_samples: 4,
             raycast_quadratic_light: true,
+            raycast_budget: None,
             scattering_orders: 0,
         }
     }

@@ -1,0 +1,189 @@
+//! A ray-cast frame's own error estimate: what it expects its error against the converged
+//! reference ([`crate::fidelity::metrics`]) to be, from its own rays, with no reference.
+//!
+//! Where a pixel is sampled by an `n x n` grid of rays (the edges of the light, the limb, the
+//! folds: [`super::sampled`]), the grid holds four interleaved grids of `n/2 x n/2` (rays of
+//! even or odd column and row), each a coarser estimate of the same integral, shifted by half
+//! a step. Their spread says how far the edge's position between rays leaves the mean:
+//! [`standard_error`] is the standard error of their mean, `e`. Where no edge crosses a pixel
+//! (tiled by its facets' exact shares, [`super::raster`]), its error is the second-order
+//! error of a facet's light read at its fragment's centroid, far below an edge pixel's:
+//! [`TILED_FLOOR`].
+//!
+//! The frame's figures ([`FrameEstimate`]) follow the metric's definitions: quantiles of
+//! `MARGIN e / I` over the lit pixels (those at 1 % of the 99th percentile or more, from the
+//! frame's own image), and the total as `MARGIN sqrt(sum e^2)` (the edge pixels' errors are
+//! of either sign) plus [`TILED_FLOOR`] of the tiled light. `MARGIN` makes the estimate an
+//! upper bound of the measured error on the frames it was checked on (`tests/mesh.rs`).
+
+use serde::Serialize;
+
+/// The estimate's factors over the pixels' estimated errors, per pixel and in total (see the
+/// module's doc).
+pub const MARGIN: f64 = 1.25;
+pub const MARGIN_TOTAL: f64 = 3.0;
+
+/// The share of the lit pixels [`to_refine`] leaves above the budget's 99th percentile (half
+/// of the 1 % it allows).
+pub const P99_ALLOWANCE: f64 = 0.005;
+
+/// The relative error assumed of a pixel tiled by its fragments (no edge crossing it), and of
+/// their light in total.
+pub const TILED_FLOOR: f64 = 3e-4;
+pub const TILED_FLOOR_TOTAL: f64 = 1e-5;
+
+/// The error a ray-cast frame refines its edges to meet (`render.raycast_budget`, which
+/// `fidelity = "budget"` sets from `[render.budget]`): relative, at the 99th percentile of
+/// the lit pixels and in total.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RaycastBudget {
+    pub p99: f64,
+    pub total: f64,
+}
+
+/// A frame's estimated error against the converged reference: relative, per lit pixel and in
+/// total, as [`crate::fidelity::metrics::FrameError`] measures it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct FrameEstimate {
+    pub median: f64,
+    pub p99: f64,
+    pub total: f64,
+}
+
+/// A pixel's estimated error from the sums `sub` of the four interleaved grids of its `n x n`
+/// grid of rays (indexed by row parity * 2 + column parity): the standard error of their mean
+/// times `2 / sqrt(n)`; NaN under `n = 2`.
+pub fn pixel_error(sub: &[f64; 4], n: u32) -> f64 {
+    if n < 2 {
+        return f64::NAN;
+    }
+    let (even, odd) = (n.div_ceil(2) as f64, (n / 2) as f64);
+    let counts = [even * even, even * odd, odd * even, odd * odd];
+    let means: [f64; 4] = std::array::from_fn(|k| sub[k] / counts[k]);
+    let mean = means.iter().sum::<f64>() / 4.0;
+    let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / 3.0;
+    (var / 4.0).sqrt() * 2.0 / (n as f64).sqrt()
+}
+
+/// The frame's figures from its image `pl` and the sampled pixels' `(index, e)`; every other
+/// pixel is taken as tiled.
+pub fn frame_estimate(pl: &[f64], sampled: &[(usize, f64)]) -> FrameEstimate {
+    let total: f64 = pl.iter().sum();
+    if total <= 0.0 {
+        return FrameEstimate::default();
+    }
+    let lit = lit_floor(pl);
+    let lit_px = pl.iter().filter(|&&x| x > 0.0 && x >= lit).count();
+    // The sampled lit pixels' relative errors, largest first; every other lit pixel is at
+    // the tiled floor.
+    let mut rel: Vec<f64> = sampled
+        .iter()
+        .filter(|(p, _)| pl[*p] >= lit)
+        .map(|&(p, e)| (MARGIN * e / pl[p]).max(TILED_FLOOR))
+        .collect();
+    rel.sort_unstable_by(|a, b| b.total_cmp(a));
+    // The value at quantile q of all lit pixels: the k-th largest, k = (1 - q) lit_px.
+    let quantile = |q: f64| {
+        let k = ((1.0 - q) * lit_px as f64).floor() as usize;
+        rel.get(k).copied().unwrap_or(TILED_FLOOR)
+    };
+    let edge_sq: f64 = sampled.iter().map(|(_, e)| e * e).sum();
+    let sampled_light: f64 = sampled.iter().map(|&(p, _)| pl[p]).sum();
+    FrameEstimate {
+        median: quantile(0.5),
+        p99: quantile(0.99),
+        total: (MARGIN_TOTAL * edge_sq.sqrt()
+            + TILED_FLOOR_TOTAL * (total - sampled_light).max(0.0))
+            / total,
+    }
+}
+
+/// The light's 1 % of its 99th percentile over the non-zero pixels: the lit pixels' floor.
+fn lit_floor(pl: &[f64]) -> f64 {
+    let mut positive: Vec<f64> = pl.iter().copied().filter(|&x| x > 0.0).collect();
+    if positive.is_empty() {
+        return f64::INFINITY;
+    }
+    crate::fidelity::metrics::LIT_FRACTION * crate::stats::quantiles(&mut positive, [0.99])[0]
+}
+
+/// Which of the sampled pixels `(pixel, e, rays per side)` to cast again with twice the rays
+/// to bring the frame within `budget`, as indices into `sampled`: the lit pixels whose
+/// relative error is estimated above the budget's 99th percentile but the largest
+/// [`P99_ALLOWANCE`] of the lit pixels, and, while the total is
+/// estimated above its budget, the largest errors until the others' add up to half of it.
+/// Pixels at `max_n` rays per side are not chosen.
+pub fn to_refine(
+    pl: &[f64],
+    sampled: &[(usize, f64, u32)],
+    budget: RaycastBudget,
+    max_n: u32,
+) -> Vec<usize> {
+    let lit = lit_floor(pl);
+    let total: f64 = pl.iter().sum();
+    let lit_px = pl.iter().filter(|&&x| x > 0.0 && x >= lit).count();
+    let rel = |k: usize| MARGIN * sampled[k].1 / pl[sampled[k].0];
+    let mut above: Vec<usize> = (0..sampled.len())
+        .filter(|&k| pl[sampled[k].0] >= lit && rel(k) > budget.p99)
+        .collect();
+    // The 99th percentile lets 1 % of the lit pixels above it: half of that share, the
+    // largest errors, are left as they are, the others cast again (those nearest the
+    // budget first fall within it).
+    above.sort_unstable_by(|&a, &b| rel(a).total_cmp(&rel(b)).then(a.cmp(&b)));
+    let keep = (P99_ALLOWANCE * lit_px as f64).floor() as usize;
+    above.truncate(above.len().saturating_sub(keep));
+    let mut chosen: Vec<usize> = above
+        .into_iter()
+        .filter(|&k| sampled[k].2 < max_n)
+        .collect();
+    let sampled_light: f64 = sampled.iter().map(|&(p, _, _)| pl[p]).sum();
+    let allowed = (budget.total * total - TILED_FLOOR_TOTAL * (total - sampled_light).max(0.0))
+        / MARGIN_TOTAL;
+    let sq: f64 = sampled.iter().map(|(_, e, _)| e * e).sum();
+    if sq.sqrt() > allowed {
+        let mut by_error: Vec<usize> = (0..sampled.len())
+            .filter(|&k| sampled[k].2 < max_n)
+            .collect();
+        by_error.sort_unstable_by(|&a, &b| sampled[b].1.total_cmp(&sampled[a].1).then(a.cmp(&b)));
+        let target = (0.5 * allowed.max(0.0)).powi(2);
+        let mut rest = sq;
+        for k in by_error {
+            if rest <= target {
+                break;
+            }
+            rest -= sampled[k].1.powi(2);
+            chosen.push(k);
+        }
+    }
+    chosen.sort_unstable();
+    chosen.dedup();
+    chosen
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn four_equal_grids_have_no_spread_and_one_ray_has_no_estimate() {
+        assert_eq!(pixel_error(&[2.0, 2.0, 2.0, 2.0], 4), 0.0);
+        assert!(pixel_error(&[1.0, 0.0, 0.0, 0.0], 1).is_nan());
+        // One grid of four fully lit, the others dark (a 4 x 4 pixel): means 1, 0, 0, 0.
+        let e = pixel_error(&[4.0, 0.0, 0.0, 0.0], 4);
+        assert!((e - (0.75f64 / 3.0 / 4.0).sqrt()).abs() < 1e-15, "{e}");
+    }
+
+    #[test]
+    fn the_frame_quantiles_count_the_tiled_pixels_at_their_floor() {
+        // 1000 lit pixels of 1.0; 20 sampled with e = 0.01 (relative 3e-2 with the margin).
+        let pl = vec![1.0; 1000];
+        let sampled: Vec<(usize, f64)> = (0..20).map(|p| (p, 0.01)).collect();
+        let f = frame_estimate(&pl, &sampled);
+        assert!((f.p99 - MARGIN * 0.01).abs() < 1e-15, "{f:?}");
+        assert_eq!(f.median, TILED_FLOOR);
+        let t = (MARGIN_TOTAL * (20.0f64 * 1e-4).sqrt() + TILED_FLOOR_TOTAL * 980.0) / 1000.0;
+        assert!((f.total - t).abs() < 1e-15);
+        // 5 sampled: under 1 %, the 99th percentile is a tiled pixel's.
+        assert_eq!(frame_estimate(&pl, &sampled[..5]).p99, TILED_FLOOR);
+    }
+}

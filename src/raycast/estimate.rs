@@ -65,15 +65,54 @@ pub fn pixel_error(sub: &[f64; 4], n: u32) -> f64 {
     (var / 4.0).sqrt() * 2.0 / (n as f64).sqrt()
 }
 
-/// The frame's figures from its image `pl` and the sampled pixels' `(index, e)`; every other
-/// pixel is taken as tiled.
-pub fn frame_estimate(pl: &[f64], sampled: &[(usize, f64)]) -> FrameEstimate {
-    let total: f64 = pl.iter().sum();
+/// What the estimate reads of the whole image: its total, the lit pixels' floor (1 % of the
+/// 99th percentile of the non-zero pixels, as the metric's) and their count.
+#[derive(Clone, Copy, Debug)]
+pub struct Light {
+    pub total: f64,
+    pub lit_floor: f64,
+    pub lit_px: usize,
+}
+
+impl Light {
+    /// From the image `pl`, in the calling thread pool; the same bits whatever its size.
+    pub fn of(pl: &[f64]) -> Light {
+        use rayon::prelude::*;
+        const RUN: usize = 1 << 16;
+        let total = pl
+            .par_chunks(RUN)
+            .map(|r| r.iter().sum::<f64>())
+            .collect::<Vec<f64>>()
+            .iter()
+            .sum();
+        let mut positive: Vec<f64> = pl.par_iter().copied().filter(|&x| x > 0.0).collect();
+        if positive.is_empty() {
+            return Light {
+                total,
+                lit_floor: f64::INFINITY,
+                lit_px: 0,
+            };
+        }
+        // The nearest rank of `stats::quantiles`, by selection rather than a sort.
+        let k = ((positive.len() - 1) as f64 * 0.99).round() as usize;
+        let (_, p99, _) = positive.select_nth_unstable_by(k, f64::total_cmp);
+        let lit_floor = crate::fidelity::metrics::LIT_FRACTION * *p99;
+        let lit_px = positive.par_iter().filter(|&&x| x >= lit_floor).count();
+        Light {
+            total,
+            lit_floor,
+            lit_px,
+        }
+    }
+}
+
+/// The frame's figures from its image `pl` (whose [`Light`] is `light`) and the sampled
+/// pixels' `(index, e)`; every other pixel is taken as tiled.
+pub fn frame_estimate(pl: &[f64], light: &Light, sampled: &[(usize, f64)]) -> FrameEstimate {
+    let (total, lit, lit_px) = (light.total, light.lit_floor, light.lit_px);
     if total <= 0.0 {
         return FrameEstimate::default();
     }
-    let lit = lit_floor(pl);
-    let lit_px = pl.iter().filter(|&&x| x > 0.0 && x >= lit).count();
     // The sampled lit pixels' relative errors, largest first; every other lit pixel is at
     // the tiled floor.
     let mut rel: Vec<f64> = sampled
@@ -98,15 +137,6 @@ pub fn frame_estimate(pl: &[f64], sampled: &[(usize, f64)]) -> FrameEstimate {
     }
 }
 
-/// The light's 1 % of its 99th percentile over the non-zero pixels: the lit pixels' floor.
-fn lit_floor(pl: &[f64]) -> f64 {
-    let mut positive: Vec<f64> = pl.iter().copied().filter(|&x| x > 0.0).collect();
-    if positive.is_empty() {
-        return f64::INFINITY;
-    }
-    crate::fidelity::metrics::LIT_FRACTION * crate::stats::quantiles(&mut positive, [0.99])[0]
-}
-
 /// Which of the sampled pixels `(pixel, e, rays per side)` to cast again with twice the rays
 /// to bring the frame within `budget`, as indices into `sampled`: the lit pixels whose
 /// relative error is estimated above the budget's 99th percentile but the largest
@@ -115,13 +145,12 @@ fn lit_floor(pl: &[f64]) -> f64 {
 /// Pixels at `max_n` rays per side are not chosen.
 pub fn to_refine(
     pl: &[f64],
+    light: &Light,
     sampled: &[(usize, f64, u32)],
     budget: RaycastBudget,
     max_n: u32,
 ) -> Vec<usize> {
-    let lit = lit_floor(pl);
-    let total: f64 = pl.iter().sum();
-    let lit_px = pl.iter().filter(|&&x| x > 0.0 && x >= lit).count();
+    let (total, lit, lit_px) = (light.total, light.lit_floor, light.lit_px);
     let rel = |k: usize| MARGIN * sampled[k].1 / pl[sampled[k].0];
     let mut above: Vec<usize> = (0..sampled.len())
         .filter(|&k| pl[sampled[k].0] >= lit && rel(k) > budget.p99)
@@ -178,12 +207,15 @@ mod tests {
         // 1000 lit pixels of 1.0; 20 sampled with e = 0.01 (relative 3e-2 with the margin).
         let pl = vec![1.0; 1000];
         let sampled: Vec<(usize, f64)> = (0..20).map(|p| (p, 0.01)).collect();
-        let f = frame_estimate(&pl, &sampled);
+        let f = frame_estimate(&pl, &Light::of(&pl), &sampled);
         assert!((f.p99 - MARGIN * 0.01).abs() < 1e-15, "{f:?}");
         assert_eq!(f.median, TILED_FLOOR);
         let t = (MARGIN_TOTAL * (20.0f64 * 1e-4).sqrt() + TILED_FLOOR_TOTAL * 980.0) / 1000.0;
         assert!((f.total - t).abs() < 1e-15);
         // 5 sampled: under 1 %, the 99th percentile is a tiled pixel's.
-        assert_eq!(frame_estimate(&pl, &sampled[..5]).p99, TILED_FLOOR);
+        assert_eq!(
+            frame_estimate(&pl, &Light::of(&pl), &sampled[..5]).p99,
+            TILED_FLOOR
+        );
     }
 }

@@ -453,12 +453,14 @@ pub fn render(
     // with twice the rays ([`refined_n`]), until the estimate meets it or they reach
     // MAX_SAMPLES.
     if let Some(b) = settings.raycast_budget.filter(|_| has_estimate) {
-        let mut estimate = super::estimate::frame_estimate(&pl, &pairs(&merged));
+        // The lit pixels and the total, read once: the refinement moves only edge pixels.
+        let light = super::estimate::Light::of(&pl);
+        let mut estimate = super::estimate::frame_estimate(&pl, &light, &pairs(&merged));
         for _ in 0..MAX_REFINEMENTS {
             if estimate.p99 <= b.p99 && estimate.total <= b.total {
                 break;
             }
-            let chosen = super::estimate::to_refine(&pl, &merged, b, MAX_SAMPLES);
+            let chosen = super::estimate::to_refine(&pl, &light, &merged, b, MAX_SAMPLES);
             if chosen.is_empty() {
                 break;
             }
@@ -477,7 +479,7 @@ pub fn render(
                 merged[k].1 = c.err;
                 merged[k].2 = refined_n(merged[k].2);
             }
-            estimate = super::estimate::frame_estimate(&pl, &pairs(&merged));
+            estimate = super::estimate::frame_estimate(&pl, &light, &pairs(&merged));
         }
     }
     // The total and the lit pixels, by fixed runs of pixels summed in order: the same bits
@@ -494,8 +496,10 @@ pub fn render(
             value: total,
         });
     }
-    let estimated_error =
-        has_estimate.then(|| super::estimate::frame_estimate(&pl, &pairs(&merged)));
+    let estimated_error = has_estimate.then(|| {
+        let light = super::estimate::Light::of(&pl);
+        super::estimate::frame_estimate(&pl, &light, &pairs(&merged))
+    });
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
         phase_deg: pose

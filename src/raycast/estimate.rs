@@ -137,19 +137,34 @@ pub fn frame_estimate(pl: &[f64], light: &Light, sampled: &[(usize, f64)]) -> Fr
     }
 }
 
-/// Which of the sampled pixels `(pixel, e, rays per side)` to cast again with twice the rays
-/// to bring the frame within `budget`, as indices into `sampled`: the lit pixels whose
+/// The rays per side a pixel cast with `n` is cast again with at least: `sqrt 2` times as
+/// many (twice the rays: 8, 11, 16, 23, 32, 45, 64), at most `max_n`.
+pub fn next_n(n: u32, max_n: u32) -> u32 {
+    ((n as f64 * std::f64::consts::SQRT_2).round() as u32).clamp(n + 1, max_n.max(n + 1))
+}
+
+/// A pixel's estimated error falls as `n^-1.5` (`standard_error` as `1/n`, times
+/// `2/sqrt(n)`): one at `rel` of its light with `n` rays per side reaches `target` with
+/// `n (rel / target)^(2/3)`. The jump aims at this share of the budget, the estimate being
+/// noisy.
+const JUMP_TARGET: f64 = 0.8;
+
+/// Which of the sampled pixels `(pixel, e, rays per side)` to cast again, and with how many
+/// rays per side, to bring the frame within `budget`, as `(index into sampled, n)`: the lit
+/// pixels whose
 /// relative error is estimated above the budget's 99th percentile but the largest
 /// [`P99_ALLOWANCE`] of the lit pixels, and, while the total is
 /// estimated above its budget, the largest errors until the others' add up to half of it.
-/// Pixels at `max_n` rays per side are not chosen.
+/// The first are cast with the rays their estimate says they need ([`JUMP_TARGET`]), at
+/// least [`next_n`]; the others with [`next_n`]. Pixels at `max_n` rays per side are not
+/// chosen.
 pub fn to_refine(
     pl: &[f64],
     light: &Light,
     sampled: &[(usize, f64, u32)],
     budget: RaycastBudget,
     max_n: u32,
-) -> Vec<usize> {
+) -> Vec<(usize, u32)> {
     let (total, lit, lit_px) = (light.total, light.lit_floor, light.lit_px);
     let rel = |k: usize| MARGIN * sampled[k].1 / pl[sampled[k].0];
     let mut above: Vec<usize> = (0..sampled.len())
@@ -161,9 +176,14 @@ pub fn to_refine(
     above.sort_unstable_by(|&a, &b| rel(a).total_cmp(&rel(b)).then(a.cmp(&b)));
     let keep = (P99_ALLOWANCE * lit_px as f64).floor() as usize;
     above.truncate(above.len().saturating_sub(keep));
-    let mut chosen: Vec<usize> = above
+    let mut chosen: Vec<(usize, u32)> = above
         .into_iter()
         .filter(|&k| sampled[k].2 < max_n)
+        .map(|k| {
+            let n = sampled[k].2;
+            let need = n as f64 * (rel(k) / (JUMP_TARGET * budget.p99)).powf(2.0 / 3.0);
+            (k, (need.ceil() as u32).clamp(next_n(n, max_n), max_n))
+        })
         .collect();
     let sampled_light: f64 = sampled.iter().map(|&(p, _, _)| pl[p]).sum();
     let allowed = (budget.total * total - TILED_FLOOR_TOTAL * (total - sampled_light).max(0.0))
@@ -181,11 +201,12 @@ pub fn to_refine(
                 break;
             }
             rest -= sampled[k].1.powi(2);
-            chosen.push(k);
+            chosen.push((k, next_n(sampled[k].2, max_n)));
         }
     }
-    chosen.sort_unstable();
-    chosen.dedup();
+    // A pixel chosen twice is cast with the more rays.
+    chosen.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(b.1.cmp(&a.1)));
+    chosen.dedup_by_key(|c| c.0);
     chosen
 }
 

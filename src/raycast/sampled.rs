@@ -66,13 +66,7 @@ const FOLD: u8 = 3;
 
 /// With `render.raycast_budget`: the most rays per pixel side, and rounds of refinement.
 const MAX_SAMPLES: u32 = 64;
-const MAX_REFINEMENTS: usize = 8;
-
-/// The rays per side a pixel refined from `n` is cast again with: `sqrt 2` times as many
-/// (twice the rays; 8, 11, 16, 23, 32, 45, 64), so that a pixel needing 17 gets 23, not 32.
-fn refined_n(n: u32) -> u32 {
-    ((n as f64 * std::f64::consts::SQRT_2).round() as u32).clamp(n + 1, MAX_SAMPLES)
-}
+const MAX_REFINEMENTS: usize = 6;
 
 /// The `(pixel, estimated error)` pairs of `(pixel, error, rays per side)`.
 fn pairs(sampled: &[(usize, f64, u32)]) -> Vec<(usize, f64)> {
@@ -450,8 +444,8 @@ pub fn render(
     }
     let has_estimate = !merged.iter().any(|(_, e, _)| e.is_nan());
     // With a budget, the pixels whose estimated error keeps the frame from it are cast again
-    // with twice the rays ([`refined_n`]), until the estimate meets it or they reach
-    // MAX_SAMPLES.
+    // with the rays their estimate says they need ([`super::estimate::to_refine`]), until
+    // the frame's estimate meets it or they reach MAX_SAMPLES.
     if let Some(b) = settings.raycast_budget.filter(|_| has_estimate) {
         // The lit pixels and the total, read once: the refinement moves only edge pixels.
         let light = super::estimate::Light::of(&pl);
@@ -468,16 +462,15 @@ pub fn render(
                 .par_iter()
                 .map_init(
                     || (Vec::new(), Vec::new()),
-                    |s, &k| recast(s, merged[k].0, refined_n(merged[k].2)),
+                    |s, &(k, n)| recast(s, merged[k].0, n),
                 )
                 .collect();
-            for (&k, c) in chosen.iter().zip(&again) {
+            for (&(k, n), c) in chosen.iter().zip(&again) {
                 let p = merged[k].0;
                 pl[p] = c.pl;
                 keep_depth(&mut depth, p, c.depth);
                 rays += c.rays;
-                merged[k].1 = c.err;
-                merged[k].2 = refined_n(merged[k].2);
+                (merged[k].1, merged[k].2) = (c.err, n);
             }
             estimate = super::estimate::frame_estimate(&pl, &light, &pairs(&merged));
         }

@@ -138,7 +138,7 @@ pub fn frame_estimate(pl: &[f64], light: &Light, sampled: &[(usize, f64)]) -> Fr
 }
 
 /// The rays per side a pixel cast with `n` is cast again with at least: `sqrt 2` times as
-/// many (twice the rays: 8, 11, 16, 23, 32, 45, 64), at most `max_n`.
+/// many (twice the rays: 8, 11, 16, 23, 33, 47, 64), at most `max_n`.
 pub fn next_n(n: u32, max_n: u32) -> u32 {
     ((n as f64 * std::f64::consts::SQRT_2).round() as u32).clamp(n + 1, max_n.max(n + 1))
 }
@@ -221,6 +221,37 @@ mod tests {
         // One grid of four fully lit, the others dark (a 4 x 4 pixel): means 1, 0, 0, 0.
         let e = pixel_error(&[4.0, 0.0, 0.0, 0.0], 4);
         assert!((e - (0.75f64 / 3.0 / 4.0).sqrt()).abs() < 1e-15, "{e}");
+    }
+
+    #[test]
+    fn refined_pixels_jump_to_the_rays_their_estimate_asks_for() {
+        assert_eq!(
+            [8, 11, 16, 23, 33, 47, 60].map(|n| next_n(n, 64)),
+            [11, 16, 23, 33, 47, 64, 64]
+        );
+        // 1000 lit pixels of 1.0. Pixels 0-9 at 8 rays per side are estimated at 4 times the
+        // budget's p99 (1e-2): each asks for 8 (4 / 0.8)^(2/3) = 23.4 -> 24 per side, but
+        // the 5 largest (half a percent of the lit pixels; equal here, the last by index)
+        // are left. Pixel 10 is within the budget, pixel 11 at 64 already.
+        let pl = vec![1.0; 1000];
+        let b = RaycastBudget {
+            p99: 1e-2,
+            total: 1.0,
+        };
+        let e = 4.0 * b.p99 / MARGIN;
+        let mut sampled: Vec<(usize, f64, u32)> = (0..10).map(|p| (p, e, 8)).collect();
+        sampled.extend([(10, 0.5 * b.p99 / MARGIN, 8), (11, e, 64)]);
+        let light = Light::of(&pl);
+        let want: Vec<(usize, u32)> = (0..6).map(|k| (k, 24)).collect();
+        assert_eq!(to_refine(&pl, &light, &sampled, b, 64), want);
+        // A total budget the errors exceed: every pixel below 64 is cast again with sqrt 2
+        // more rays per side.
+        let tight = RaycastBudget {
+            p99: 1.0,
+            total: 1e-6,
+        };
+        let want: Vec<(usize, u32)> = (0..11).map(|k| (k, 11)).collect();
+        assert_eq!(to_refine(&pl, &light, &sampled, tight, 64), want);
     }
 
     #[test]

@@ -724,17 +724,35 @@ fn one_renderer_keeps_each_meshs_own_form_factors() {
 
 /// Bennu (Lambert) 42 px in radius at 41 deg of phase, its facets about 2 px across.
 fn bennu_small(distortion: &str) -> Config {
+    bennu_small_lit(distortion, [1.26e11, 1.06e11, 0.0])
+}
+
+/// [`bennu_small`] with the Sun at `sun_m`.
+fn bennu_small_lit(distortion: &str, sun_m: [f64; 3]) -> Config {
     let path = std::fs::canonicalize(format!("{SHAPES}/bennu_12k.obj")).unwrap();
     let spec = SceneSpec {
         resolution: [96, 96],
         focal_m: 0.94e-3,
         camera_m: [1000.0, 0.0, 150.0],
-        sun_m: [1.26e11, 1.06e11, 0.0],
+        sun_m,
         distortion,
         ..Default::default()
     };
     let text = mesh_toml(&spec, &path.display().to_string());
     optistim::config::parse(&text, "<test>").unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The converged reference of a small frame: tolerance 1e-3 per pixel, 5 halvings (30 s on
+/// Bennu at 96 x 96 on 2 cores).
+fn small_reference(cfg: &Config) -> optistim::raycast::reference::ReferenceFrame {
+    use optistim::raycast::reference::{self, ReferenceSettings};
+    let settings = ReferenceSettings {
+        tolerance: 1e-3,
+        max_depth: 5,
+        edge_depth: 5,
+        ..Default::default()
+    };
+    reference::render(&cfg.scene, &cfg.pose, &settings).unwrap()
 }
 
 /// A lone mesh through a pinhole is tiled by its facets' exact shares of each pixel
@@ -743,15 +761,8 @@ fn bennu_small(distortion: &str) -> Config {
 #[test]
 fn facets_tiled_exactly_leave_only_the_edges_of_the_light_to_sampling() {
     use optistim::fidelity::metrics::frame_error;
-    use optistim::raycast::reference::{self, ReferenceSettings};
     let cfg = bennu_small("");
-    let settings = ReferenceSettings {
-        tolerance: 1e-3,
-        max_depth: 5,
-        edge_depth: 5,
-        ..Default::default()
-    };
-    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
+    let r = small_reference(&cfg);
     let tiled = render(&cfg, &cfg.settings);
     // A distortion too small to move a ray but enough to turn the rasteriser off: one ray
     // per pixel, through the BVH.
@@ -843,25 +854,9 @@ fn estimates_bound_and_budget_holds(cfg: &Config, reference: &[f64], edge_sample
 /// meets the budget.
 #[test]
 fn a_ray_cast_frame_refines_its_edges_to_the_budget_at_a_high_phase() {
-    use optistim::raycast::reference::{self, ReferenceSettings};
-    let path = std::fs::canonicalize(format!("{SHAPES}/bennu_12k.obj")).unwrap();
     let g = 100f64.to_radians();
-    let spec = SceneSpec {
-        resolution: [96, 96],
-        focal_m: 0.94e-3,
-        camera_m: [1000.0, 0.0, 150.0],
-        sun_m: [1.6e11 * g.cos(), 1.6e11 * g.sin(), 0.0],
-        ..Default::default()
-    };
-    let text = mesh_toml(&spec, &path.display().to_string());
-    let cfg = optistim::config::parse(&text, "<test>").unwrap_or_else(|e| panic!("{e}"));
-    let settings = ReferenceSettings {
-        tolerance: 1e-3,
-        max_depth: 5,
-        edge_depth: 5,
-        ..Default::default()
-    };
-    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
+    let cfg = bennu_small_lit("", [1.6e11 * g.cos(), 1.6e11 * g.sin(), 0.0]);
+    let r = small_reference(&cfg);
     estimates_bound_and_budget_holds(&cfg, &r.frame.pl, &[8, 32]);
 }
 

@@ -68,11 +68,6 @@ const FOLD: u8 = 3;
 const MAX_SAMPLES: u32 = 64;
 const MAX_REFINEMENTS: usize = 6;
 
-/// The `(pixel, estimated error)` pairs of `(pixel, error, rays per side)`.
-fn pairs(sampled: &[(usize, f64, u32)]) -> Vec<(usize, f64)> {
-    sampled.iter().map(|&(p, e, _)| (p, e)).collect()
-}
-
 /// The first facet at each sample of a region of pixels ([`super::raster`]): the region's
 /// buffer, the index in it of a pixel's sample `(0, 0)`, and its row stride.
 type Seen<'a> = (&'a [u32], usize, usize);
@@ -449,7 +444,7 @@ pub fn render(
     if let Some(b) = settings.raycast_budget.filter(|_| has_estimate) {
         // The lit pixels and the total, read once: the refinement moves only edge pixels.
         let light = super::estimate::Light::of(&pl);
-        let mut estimate = super::estimate::frame_estimate(&pl, &light, &pairs(&merged));
+        let mut estimate = super::estimate::frame_estimate(&pl, &light, &merged);
         for _ in 0..MAX_REFINEMENTS {
             if estimate.p99 <= b.p99 && estimate.total <= b.total {
                 break;
@@ -472,7 +467,7 @@ pub fn render(
                 rays += c.rays;
                 (merged[k].1, merged[k].2) = (c.err, n);
             }
-            estimate = super::estimate::frame_estimate(&pl, &light, &pairs(&merged));
+            estimate = super::estimate::frame_estimate(&pl, &light, &merged);
         }
     }
     // The total and the lit pixels, by fixed runs of pixels summed in order: the same bits
@@ -491,7 +486,7 @@ pub fn render(
     }
     let estimated_error = has_estimate.then(|| {
         let light = super::estimate::Light::of(&pl);
-        super::estimate::frame_estimate(&pl, &light, &pairs(&merged))
+        super::estimate::frame_estimate(&pl, &light, &merged)
     });
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {

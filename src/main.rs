@@ -259,6 +259,28 @@ enum Command {
         #[arg(long, default_value = "cpu")]
         present: String,
     },
+    /// Does watching disturb the loop? The daemon's pose-to-presented latency, streamed at
+    /// 10 Hz in lockstep, alone and while clients poll every HTTP endpoint (rounds
+    /// interleaved); the p99 ratio, what was served and the images made for it.
+    BenchWatching {
+        /// Trajectory CSV (positions and attitudes in the body frame).
+        trajectory: PathBuf,
+        /// Scene with a [stimulator] section (default: the embedded config/daemon.toml).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Poses per round, spread over the trajectory.
+        #[arg(long, default_value_t = 100)]
+        frames: usize,
+        /// Rounds alone and watched, interleaved.
+        #[arg(long, default_value_t = 6)]
+        rounds: usize,
+        /// Polling clients.
+        #[arg(long, default_value_t = 16)]
+        clients: usize,
+        /// Each client's pause between requests [ms].
+        #[arg(long, default_value_t = 50)]
+        poll_ms: u64,
+    },
     /// Time the stimulator's per-frame path on the GPU: F_eff -> screen region -> LUT pass ->
     /// presented off-screen and read back; per stage, with the CPU reference's agreement.
     BenchDisplay {
@@ -557,20 +579,8 @@ fn run() -> anyhow::Result<()> {
             present,
         } => {
             use optistim::server::frames::PresenterChoice;
-            let (text, label) = match &scene {
-                Some(p) => (
-                    std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?,
-                    p.display().to_string(),
-                ),
-                None => (
-                    optistim::server::DEFAULT_CONFIG.to_string(),
-                    "<embedded config/daemon.toml>".to_string(),
-                ),
-            };
-            let cfg = config::parse(&text, &label)?;
-            let all = app::replay::read_poses(&trajectory)?;
-            let step = (all.len() / frames.max(1)).max(1);
-            let poses: Vec<_> = all.into_iter().step_by(step).take(frames).collect();
+            let (cfg, label) = daemon_scene(scene.as_deref())?;
+            let poses = app::replay::spread(app::replay::read_poses(&trajectory)?, frames);
             let presenter = match present.as_str() {
                 "cpu" => PresenterChoice::Cpu,
                 "offscreen" => PresenterChoice::Offscreen,
@@ -578,6 +588,25 @@ fn run() -> anyhow::Result<()> {
                 other => anyhow::bail!("--present {other}: allowed are cpu, offscreen, auto"),
             };
             let report = app::bench_endpoints::run(&cfg, &label, &poses, presenter)?;
+            out!("{}", serde_json::to_string(&report)?);
+        }
+        Command::BenchWatching {
+            trajectory,
+            scene,
+            frames,
+            rounds,
+            clients,
+            poll_ms,
+        } => {
+            let (cfg, label) = daemon_scene(scene.as_deref())?;
+            let poses = app::replay::spread(app::replay::read_poses(&trajectory)?, frames);
+            let options = app::bench_watching::WatchingOptions {
+                rounds,
+                clients,
+                poll_ms,
+                ..Default::default()
+            };
+            let report = app::bench_watching::run(&cfg, &label, &poses, &options)?;
             out!("{}", serde_json::to_string(&report)?);
         }
         Command::BenchDisplay {
@@ -798,6 +827,22 @@ fn wait_for_signal() -> anyhow::Result<()> {
         Ok::<(), std::io::Error>(())
     })?;
     Ok(())
+}
+
+/// The scene a benchmarked daemon serves, and its label: the file named, or the embedded
+/// default.
+fn daemon_scene(scene: Option<&std::path::Path>) -> anyhow::Result<(config::Config, String)> {
+    let (text, label) = match scene {
+        Some(p) => (
+            std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?,
+            p.display().to_string(),
+        ),
+        None => (
+            optistim::server::DEFAULT_CONFIG.to_string(),
+            "<embedded config/daemon.toml>".to_string(),
+        ),
+    };
+    Ok((config::parse(&text, &label)?, label))
 }
 
 fn parse_size(s: &str) -> Option<[usize; 2]> {

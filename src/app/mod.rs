@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bench_endpoints;
+pub mod bench_watching;
 pub mod calibrate;
 pub mod compare;
 pub mod exposure;

@@ -59,6 +59,12 @@ pub struct ReplayReport {
     pub error_messages: Vec<String>,
 }
 
+/// `n` poses spread evenly over `all` (every `len / n`-th, from the first); all when fewer.
+pub fn spread(all: Vec<PoseMsg>, n: usize) -> Vec<PoseMsg> {
+    let step = (all.len() / n.max(1)).max(1);
+    all.into_iter().step_by(step).take(n).collect()
+}
+
 /// Reads the poses of a trajectory (CSV/JSONL) or a daemon recording (JSONL with `msg`).
 pub fn read_poses(path: &Path) -> Result<Vec<PoseMsg>, AppError> {
     let text = std::fs::read_to_string(path)

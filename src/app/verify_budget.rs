@@ -86,9 +86,13 @@ pub struct VerifyReport {
     pub share_predicted_to_meet: f64,
     pub budget_median_ms: f64,
     pub budget_max_ms: f64,
-    /// The cheapest rung meeting the budget on every frame (`None`: no rung does), and its
-    /// quadrangles per pixel (quadrangle scenes).
+    /// The cheapest rung meeting the budget on every frame, judged on the figures the
+    /// reference is converged for, and its quadrangles per pixel (quadrangle scenes). `None`
+    /// when no rung does, or when the reference judges the p99 or the total on no frame at
+    /// all (then no rung can be shown to meet it): `fixed_rung_judged_on` says which.
     pub fixed_rung: Option<String>,
+    /// The frames on which the rungs' p99 and total could be judged.
+    pub fixed_rung_judged_on: String,
     pub fixed_rung_points_per_pixel: Option<f64>,
     pub fixed_median_ms: f64,
     pub fixed_max_ms: f64,
@@ -277,7 +281,22 @@ pub fn run(
     };
     let mut times: Vec<f64> = checks.iter().map(|c| c.0.budget_ms).collect();
     let [b_med, b_max] = crate::stats::quantiles(&mut times, [0.5, 1.0]);
-    let fixed = rung_ok.iter().position(|&ok| ok);
+    let judged_p99 = checks.iter().filter(|c| c.0.verifiable_p99).count();
+    let judged_total = checks.iter().filter(|c| c.0.verifiable_total).count();
+    let fixed = if judged_p99 == 0 || judged_total == 0 {
+        None
+    } else {
+        rung_ok.iter().position(|&ok| ok)
+    };
+    let fixed_rung_judged_on = format!(
+        "p99 on {judged_p99} of {} frames, total on {judged_total}{}",
+        checks.len(),
+        if judged_p99 == 0 || judged_total == 0 {
+            ": none judgeable, no rung named"
+        } else {
+            ""
+        }
+    );
     let [f_med, f_max] = match fixed {
         Some(k) => crate::stats::quantiles(&mut rung_times[k], [0.5, 1.0]),
         None => [f64::NAN; 2],
@@ -308,6 +327,7 @@ pub fn run(
         budget_median_ms: b_med,
         budget_max_ms: b_max,
         fixed_rung: fixed.map(|k| ladder[k].0.clone()),
+        fixed_rung_judged_on,
         fixed_rung_points_per_pixel: fixed.and_then(|k| ladder[k].2),
         fixed_median_ms: f_med,
         fixed_max_ms: f_max,

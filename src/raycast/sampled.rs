@@ -438,18 +438,24 @@ pub fn render(
         }
     }
     let has_estimate = !merged.iter().any(|(_, e, _)| e.is_nan());
+    // The frame's estimate ([`super::estimate::frame_estimate`]) over the lit pixels and the
+    // total of its image as first cast: the refinement below moves only edge pixels, by far
+    // less than the estimate's own uncertainty, so they are read once.
+    let light = has_estimate.then(|| super::estimate::Light::of(&pl));
+    let mut estimated_error = light
+        .as_ref()
+        .map(|light| super::estimate::frame_estimate(&pl, light, &merged));
     // With a budget, the pixels whose estimated error keeps the frame from it are cast again
     // with the rays their estimate says they need ([`super::estimate::to_refine`]), until
     // the frame's estimate meets it or they reach MAX_SAMPLES.
-    if let Some(b) = settings.raycast_budget.filter(|_| has_estimate) {
-        // The lit pixels and the total, read once: the refinement moves only edge pixels.
-        let light = super::estimate::Light::of(&pl);
-        let mut estimate = super::estimate::frame_estimate(&pl, &light, &merged);
+    if let (Some(b), Some(light), Some(estimate)) =
+        (settings.raycast_budget, &light, &mut estimated_error)
+    {
         for _ in 0..MAX_REFINEMENTS {
             if estimate.p99 <= b.p99 && estimate.total <= b.total {
                 break;
             }
-            let chosen = super::estimate::to_refine(&pl, &light, &merged, b, MAX_SAMPLES);
+            let chosen = super::estimate::to_refine(&pl, light, &merged, b, MAX_SAMPLES);
             if chosen.is_empty() {
                 break;
             }
@@ -467,7 +473,7 @@ pub fn render(
                 rays += c.rays;
                 (merged[k].1, merged[k].2) = (c.err, n);
             }
-            estimate = super::estimate::frame_estimate(&pl, &light, &merged);
+            *estimate = super::estimate::frame_estimate(&pl, light, &merged);
         }
     }
     // The total and the lit pixels, by fixed runs of pixels summed in order: the same bits
@@ -484,10 +490,6 @@ pub fn render(
             value: total,
         });
     }
-    let estimated_error = has_estimate.then(|| {
-        let light = super::estimate::Light::of(&pl);
-        super::estimate::frame_estimate(&pl, &light, &merged)
-    });
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
         phase_deg: pose

@@ -17,8 +17,10 @@ const NRHO: &str = "../shared/trajectories/nrho_2orbits.csv";
 fn sixteen_pollers_are_served_and_no_frame_is_lost() {
     let cfg = optistim::config::parse(optistim::server::DEFAULT_CONFIG, "<test daemon>")
         .unwrap_or_else(|e| panic!("{e}"));
-    let poses =
-        replay::spread(replay::read_poses(Path::new(NRHO)).unwrap_or_else(|e| panic!("{e}")), 100);
+    let poses = replay::spread(
+        replay::read_poses(Path::new(NRHO)).unwrap_or_else(|e| panic!("{e}")),
+        100,
+    );
     let options = WatchingOptions {
         rounds: 2,
         ..Default::default()

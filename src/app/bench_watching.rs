@@ -159,7 +159,10 @@ fn poll(addr: SocketAddr, first: usize, poll_ms: u64, served: &Served) {
             }
             other => {
                 served.failed.fetch_add(1, Ordering::Relaxed);
-                let mut f = served.first_failure.lock().unwrap_or_else(|p| p.into_inner());
+                let mut f = served
+                    .first_failure
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner());
                 if f.is_none() {
                     *f = Some(match other {
                         Ok((code, _)) => format!("{e} -> {code}"),

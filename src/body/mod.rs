@@ -13,6 +13,7 @@ pub mod ellipsoid;
 pub mod horizon;
 pub mod maps;
 pub mod mesh;
+pub mod pyramid;
 pub mod sphere;
 
 use crate::brdf::Brdf;
@@ -199,6 +200,9 @@ pub struct Relief {
     max_slope: f64,
     /// Ray-marching step [m]: a quarter texel in latitude.
     step_m: f64,
+    /// Block maxima of a global DEM (`None` for a regional one), over which a marched ray
+    /// skips the steps that cannot meet the ground.
+    pyramid: Option<std::sync::Arc<pyramid::MaxPyramid>>,
     /// The sine of the local horizon's elevation angle (one value per texel, every azimuth),
     /// taken once at load from the horizon map [rad].
     pub horizon_sin: Option<std::sync::Arc<maps::Map>>,
@@ -308,6 +312,7 @@ impl Relief {
             .fold((f32::MAX, f32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
         let (bottom_m, top_m) = (bottom as f64, top as f64);
         let slope = |values| heights_m.with_values(values).map(std::sync::Arc::new);
+        let pyramid = pyramid::MaxPyramid::new(&heights_m, radius_m).map(std::sync::Arc::new);
         Ok(Relief {
             slope_east: slope(east)?,
             slope_north: slope(north)?,
@@ -317,6 +322,7 @@ impl Relief {
             bottom_m,
             max_slope,
             step_m: 0.25 * radius_m * dlat,
+            pyramid,
             horizon_sin: None,
             horizon_sin_max: -1.0,
             horizon_on_dem_grid: false,
@@ -378,6 +384,11 @@ impl Relief {
         Some(HorizonAt { horizon, taps, up })
     }
 
+    /// The DEM's block maxima (`None` for a regional DEM).
+    pub fn pyramid(&self) -> Option<std::sync::Arc<pyramid::MaxPyramid>> {
+        self.pyramid.clone()
+    }
+
     /// The sine of the highest horizon in the map: directions rising more steeply than that
     /// need no lookup.
     pub fn horizon_sin_max(&self) -> f64 {
@@ -392,6 +403,13 @@ impl Relief {
     /// marched on a displaced one, whose points beyond their own limb or terminator (a peak
     /// seen or lit over the horizon) may still see the camera or the Sun.
     pub fn occluded(&self, up: DVec3, toward: DVec3) -> bool {
+        self.march(up, toward, true)
+    }
+
+    /// [`Relief::occluded`], with the pyramid's leaps (`leaps`) or without: the same points
+    /// are tested either way (step `n` at `n` steps from the start), the leaps only skip
+    /// those that clear the highest ground within reach, so the answer is the same.
+    fn march(&self, up: DVec3, toward: DVec3, leaps: bool) -> bool {
         let rise = toward.dot(up);
         if rise <= 0.0 && !self.displaces {
             return false; // below the horizontal: the BRDF's cosine is already <= 0
@@ -407,10 +425,19 @@ impl Relief {
         // Below every point of the surface (a regional map's surroundings at the reference
         // radius), a ray descending from a displaced point is inside the body.
         let floor = self.radius_m + self.bottom_m.min(0.0);
-        let mut t = self.step_m;
+        let pyramid = self.pyramid.as_deref().filter(|_| leaps);
+        let mut n = 1.0f64;
+        if let Some(p) = pyramid.filter(|_| rise > 0.0) {
+            // From the ground, rising more steeply than the ground within reach.
+            let at = pyramid::RayPoint { up, lon, lat };
+            n += (p.rise_clear(&self.heights_m, &at, rise) / self.step_m).floor();
+        }
         loop {
+            let t = n * self.step_m;
             let q = start + toward * t;
             let r = q.length();
+            // Once above the highest point the ray stays above it: its radius is convex
+            // along it and started below.
             if r > ceiling {
                 return false;
             }
@@ -423,7 +450,16 @@ impl Relief {
             {
                 return true;
             }
-            t += self.step_m;
+            n += 1.0;
+            if let Some(p) = pyramid {
+                let at = pyramid::RayPoint {
+                    up: q / r,
+                    lon,
+                    lat,
+                };
+                // Steps within the leap cannot meet the ground (nor go below the floor).
+                n += (p.leap(&self.heights_m, start, toward, t, &at) / self.step_m).floor();
+            }
         }
     }
 

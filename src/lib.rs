@@ -10,7 +10,7 @@
 //! | [`geometry`] | frames (B, C, CSF), rotations named `a_from_b`, spherical coordinates and local east/north, ray-sphere; `bvh`: the triangle BVH (obvhs) behind rays in and hits out |
 //! | [`radiometry`] | Planck, the Sun's spectrum, spectral tables, band integrals (Eqs. 5-10, 45), a surface's spectral reflectance shape (the average Moon's built in) |
 //! | [`brdf`] | reflectance models, one file each (Lambert to Hapke); phase laws (Eq. 48) and albedo conversions |
-//! | [`body`] | the body's shape (sphere, triaxial ellipsoid, triangle mesh: OBJ / PLY / STL loaded, checked and repaired), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows), horizon and normal maps, horizons computed from the DEM by azimuth |
+//! | [`body`] | the body's shape (sphere, triaxial ellipsoid, triangle mesh: OBJ / PLY / STL loaded, checked and repaired), reflectance, texture maps (TIFF, bilinear, seamless) for albedo, DEM relief (heights or radii, on the sphere or an ellipsoid: normals, displacement, ray-marched shadows that leap over the DEM's block maxima of height and slope, `pyramid`), horizon and normal maps, horizons computed from the DEM by azimuth |
 //! | [`camera`] | pinhole intrinsics with Brown distortion (Eqs. 39-40) |
 //! | [`compare`] | rendered vs real images (Sec. 5.3): NCC alignment, foreground, SSIM luminance / contrast / structure, the DN response quantile by quantile |
 //! | [`detector`] | (P/L) -> signal -> optics PSF -> electrons with noises -> DN at the saved bit depth (Eqs. 45-47); a camera's bands (each its QE, transmittance, PSF and distortion: chromatic aberrations), full images per band or a Bayer mosaic |

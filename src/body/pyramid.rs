@@ -253,6 +253,14 @@ fn dilate(block: &[f32], bw: usize, bh: usize) -> Vec<f32> {
     dilated
 }
 
+/// A number in [0, 1) from `i`, the same everywhere: the rough terrains of the marchers'
+/// tests.
+#[cfg(test)]
+pub(crate) fn unit_hash(i: usize) -> f64 {
+    let x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
+    x as f64 / (1u64 << 24) as f64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -267,10 +275,7 @@ mod tests {
     #[test]
     fn the_marchers_leaps_change_no_answer() {
         let (w, h) = (1440usize, 720usize);
-        let hash = |i: usize| {
-            let x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
-            x as f64 / (1u64 << 24) as f64
-        };
+        let hash = unit_hash;
         let v: Vec<f64> = (0..w * h)
             .map(|i| {
                 let (c, r) = ((i % w) as f64, (i / w) as f64);

@@ -180,10 +180,7 @@ mod tests {
     #[test]
     fn the_pyramid_leaps_change_no_answer() {
         let (w, h) = (720usize, 360usize);
-        let hash = |i: usize| {
-            let x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
-            x as f64 / (1u64 << 24) as f64
-        };
+        let hash = crate::body::pyramid::unit_hash;
         let v: Vec<f64> = (0..w * h)
             .map(|i| {
                 let (c, r) = ((i % w) as f64, (i / w) as f64);

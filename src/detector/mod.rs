@@ -293,10 +293,23 @@ impl Detector {
                 let sources: Vec<_> = (0..self.bands.len())
                     .map(|b| source(band(b), size, self.band_psf_sigma_px(b)))
                     .collect();
+                let planes: Vec<(&[f64], f64)> =
+                    sources.iter().map(|(s, k)| (&s[..], *k)).collect();
                 let w = size.0.max(1);
-                let mosaic = |i: usize| {
-                    let (s, k) = &sources[order.band_at(i % w, i / w)];
-                    s[i] * k
+                // Row by row, the bands of its even and odd columns: no division per pixel.
+                let mosaic = |base: usize, out: &mut [f64]| {
+                    let mut done = 0;
+                    while done < out.len() {
+                        let i = base + done;
+                        let (x0, y) = (i % w, i / w);
+                        let run = (w - x0).min(out.len() - done);
+                        let cols = [planes[order.band_at(0, y)], planes[order.band_at(1, y)]];
+                        for (j, o) in out[done..done + run].iter_mut().enumerate() {
+                            let (s, k) = cols[(x0 + j) & 1];
+                            *o = s[i + j] * k;
+                        }
+                        done += run;
+                    }
                 };
                 self.expose_pixels(mosaic, frame_id, 0, dn);
             }
@@ -349,14 +362,21 @@ impl Detector {
         dn_out: &mut [u16],
     ) {
         let (s, k) = source((plane, k), size, psf_sigma_px);
-        self.expose_pixels(|i| s[i] * k, frame_id, plane_id, dn_out);
+        let plane = |base: usize, out: &mut [f64]| {
+            let n = out.len();
+            for (o, &x) in out.iter_mut().zip(&s[base..base + n]) {
+                *o = x * k;
+            }
+        };
+        self.expose_pixels(plane, frame_id, plane_id, dn_out);
     }
 
-    /// The exposure of every pixel `i` of `dn_out`, of signal `signal(i)` [e-/s] (a Bayer
-    /// mosaic reads each pixel from its band's image without making the mosaic).
+    /// The exposure of every pixel of `dn_out`, whose signal [e-/s] `signal(i, out)` writes
+    /// into `out` for the run of pixels from `i` (a Bayer mosaic reads each pixel from its
+    /// band's image without making the mosaic).
     fn expose_pixels(
         &self,
-        signal_e_per_s: impl Fn(usize) -> f64 + Sync,
+        signal_e_per_s: impl Fn(usize, &mut [f64]) + Sync,
         frame_id: u64,
         plane: u64,
         dn_out: &mut [u16],
@@ -371,7 +391,7 @@ impl Detector {
         dn_out
             .par_chunks_mut(4096)
             .enumerate()
-            .for_each(|(chunk, out)| {
+            .for_each_init(Vec::new, |signal, (chunk, out)| {
                 // A watcher's capture pauses here while a frame is in flight (a no-op on
                 // the frame's own threads).
                 crate::background::checkpoint();
@@ -384,8 +404,10 @@ impl Detector {
                 let mut fixed_rng = fixed.then(|| rng(seed, Stream::Fixed, None, c));
                 let mut temporal_rng =
                     temporal.then(|| rng(seed, Stream::Temporal, Some(frame_id), c));
-                for (k, dn) in out.iter_mut().enumerate() {
-                    let mut s = signal_e_per_s(base + k);
+                signal.resize(out.len(), 0.0);
+                signal_e_per_s(base, signal);
+                for (dn, &s) in out.iter_mut().zip(signal.iter()) {
+                    let mut s = s;
                     if s == 0.0
                         && let (Some(d), Some(r)) = (&dark_dn, temporal_rng.as_mut())
                     {

@@ -380,7 +380,18 @@ impl<'a> Tracer<'a> {
                 .eval(&g),
             None => body.brdf.eval(&g),
         };
-        light.direct = self.k_px * f_r * g.mu0 * cos_eps / d_sun2 * solid;
+        // A DEM that tilts the normals only (no displacement) leaves the shape's surface
+        // where it is: the paper's Eq. 37 weighs each area element of the shape by the cosines
+        // of the DEM's normal, `f_r cos(theta_i) cos(theta_r) A`, as the facets beneath a pixel
+        // show their light (a facet turned towards the camera shows more of it). Per unit of
+        // the shape's projected area, which is what a ray's solid angle covers, that is the
+        // radiance times `cos(theta_r) / mu_shape` (the renderer's integrand,
+        // `render::integration`).
+        let foreshortening = match &body.relief {
+            Some(r) if !r.displaces() => g.mu / shape_normal.dot(-dir).max(1e-12),
+            _ => 1.0,
+        };
+        light.direct = self.k_px * f_r * g.mu0 * foreshortening * cos_eps / d_sun2 * solid;
         light
     }
 

@@ -326,8 +326,14 @@ fn reference_of(
     cached_reference(&scene.text, &c.scene, &c.pose, settings, dir)
 }
 
+/// What the reference computes, in the cache's key: raised whenever a change of the reference
+/// changes its images, so that no cache made before is read as its image. 2: a DEM that
+/// tilts the normals only weighs the light by the DEM normal's `cos(theta_r)` (Eq. 37).
+const REFERENCE_MODEL: u32 = 2;
+
 /// The reference of `scene` from `pose`, from the cache in `dir` (keyed by the SHA-256 of
-/// `text`, the scene file's text, the pose and the settings) or rendered and cached:
+/// `text`, the scene file's text, the pose, the settings and [`REFERENCE_MODEL`]) or rendered
+/// and cached:
 /// `(image, seconds it took, its estimated total error, its estimated p99, reused)`.
 pub fn cached_reference(
     text: &str,
@@ -338,8 +344,18 @@ pub fn cached_reference(
 ) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
     let key = crate::io::sha256_hex(
         format!(
-            "{}\n{:?} {:?} {:?}\n{:?}",
-            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, settings
+            "{}\n{:?} {:?} {:?}\n{:?}{}",
+            text,
+            p.camera_position_m,
+            p.body_from_camera,
+            p.sun_position_m,
+            settings,
+            // Model 1 (no suffix) keeps the caches made before the model was numbered.
+            if REFERENCE_MODEL == 1 {
+                String::new()
+            } else {
+                format!(" model {REFERENCE_MODEL}")
+            }
         )
         .as_bytes(),
     );

@@ -387,8 +387,16 @@ impl<'a> Tracer<'a> {
         // the shape's projected area, which is what a ray's solid angle covers, that is the
         // radiance times `cos(theta_r) / mu_shape` (the renderer's integrand,
         // `render::integration`).
-        let foreshortening = match &body.relief {
-            Some(r) if !r.displaces() => g.mu / shape_normal.dot(-dir).max(1e-12),
+        // Weighed so, the facets' projected areas overlap where the terrain hides one from the
+        // camera behind another, and the hidden one shows nothing (Eq. 33's occlusion, as the
+        // renderer marches it towards the camera).
+        let foreshortening = match (&body.relief, &self.terrain) {
+            (Some(r), Some(terrain)) if !r.displaces() => {
+                if terrain.shadowed(up, -dir, false) {
+                    return light;
+                }
+                g.mu / shape_normal.dot(-dir).max(1e-12)
+            }
             _ => 1.0,
         };
         light.direct = self.k_px * f_r * g.mu0 * foreshortening * cos_eps / d_sun2 * solid;

@@ -55,6 +55,41 @@ pub struct RayPoint {
     pub lat: f64,
 }
 
+/// Where a point lies on the map's grid: its texel coordinates (column wrapped) and the
+/// |sine| and cosine of its latitude.
+struct Place {
+    x: f64,
+    y: f64,
+    sin_lat: f64,
+    cos_lat: f64,
+}
+
+impl Place {
+    fn of(map: &Map, at: &RayPoint) -> Place {
+        let (x, y) = map.texel_coords(at.lon, at.lat);
+        Place {
+            x: x.rem_euclid(map.width as f64),
+            y,
+            sin_lat: at.up.z.abs(),
+            cos_lat: at.up.truncate().length(),
+        }
+    }
+}
+
+impl MaxLevel {
+    /// From `p`: the largest angular move [rad] that keeps the point within `side` texels in
+    /// latitude and, with the cosine of the farthest latitude it can reach, in longitude
+    /// (with a margin of a tenth); its band of block rows; and its block's index.
+    fn reach(&self, p: &Place) -> (f64, usize, usize) {
+        let n = self.side as f64;
+        let cos_reach = p.cos_lat * self.cos_span - p.sin_lat * self.sin_span;
+        let a = 0.9 * self.span_lat_rad.min(self.span_lon_rad * cos_reach);
+        let band = ((p.y.max(0.0) / n) as usize).min(self.h - 1);
+        let column = (p.x / n) as usize % self.w;
+        (a, band, band * self.w + column)
+    }
+}
+
 impl MaxPyramid {
     /// The pyramid of `map` (heights [m] above a sphere of `radius_m`); `None` for a regional
     /// map.
@@ -143,23 +178,17 @@ impl MaxPyramid {
     /// level allows it. Blocks spanning less than 0.1 rad only, where an arc and its chord
     /// differ by less than the margin of 1e-3.
     pub fn rise_clear(&self, map: &Map, at: &RayPoint, rise: f64) -> f64 {
-        let (x, y) = map.texel_coords(at.lon, at.lat);
-        let x = x.rem_euclid(map.width as f64);
-        let (sin_lat, cos_lat) = (at.up.z.abs(), at.up.truncate().length());
+        let place = Place::of(map, at);
         let mut best = 0.0;
         for lvl in &self.levels {
             if lvl.span_lat_rad > 0.1 {
                 break;
             }
-            let n = lvl.side as f64;
-            let cos_reach = cos_lat * lvl.cos_span - sin_lat * lvl.sin_span;
-            let a = 0.9 * lvl.span_lat_rad.min(lvl.span_lon_rad * cos_reach);
+            let (a, _, block) = lvl.reach(&place);
             if a < 0.45 * lvl.span_lat_rad {
                 break;
             }
-            let br = ((y.max(0.0) / n) as usize).min(lvl.h - 1);
-            let bc = (x / n) as usize % lvl.w;
-            if rise > 1.001 * lvl.dilated_slope[br * lvl.w + bc] as f64 {
+            if rise > 1.001 * lvl.dilated_slope[block] as f64 {
                 best = a * self.bottom_radius_m;
             } else {
                 break;
@@ -178,8 +207,7 @@ impl MaxPyramid {
     /// of), 0 when no level allows a leap: the longest step over which the ray's lowest
     /// radius clears the highest ground within reach.
     pub fn leap(&self, map: &Map, origin: DVec3, dir: DVec3, t: f64, at: &RayPoint) -> f64 {
-        let (x, y) = map.texel_coords(at.lon, at.lat);
-        let x = x.rem_euclid(map.width as f64);
+        let place = Place::of(map, at);
         // The ray's lowest radius over [t, t + dt]: |origin + s dir|^2 is convex in s.
         let b = origin.dot(dir);
         let c = origin.length_squared();
@@ -187,25 +215,17 @@ impl MaxPyramid {
             let s = (-b).clamp(t, t + dt);
             (c + 2.0 * s * b + s * s).max(0.0).sqrt()
         };
-        // |sin| and cos of the point's latitude.
-        let (sin_lat, cos_lat) = (at.up.z.abs(), at.up.truncate().length());
         // Levels from the finest: a level that fails fails all coarser ones (their reach and
         // their step are larger), so the first failure ends the search.
         let mut best = 0.0;
         for lvl in &self.levels {
-            let n = lvl.side as f64;
-            // An angular move of at most `a` keeps the point within `side` texels in latitude
-            // and, with the cosine of the farthest latitude it can reach, in longitude.
-            let cos_reach = cos_lat * lvl.cos_span - sin_lat * lvl.sin_span;
-            let a_block = 0.9 * lvl.span_lat_rad.min(lvl.span_lon_rad * cos_reach);
-            let br = ((y.max(0.0) / n) as usize).min(lvl.h - 1);
+            let (a_block, band, block) = lvl.reach(&place);
             // Near a pole the block's longitudes bind: the band of all longitudes, by
             // latitude alone, leaps farther.
             let (a, top) = if a_block >= 0.45 * lvl.span_lat_rad {
-                let bc = (x / n) as usize % lvl.w;
-                (a_block, lvl.dilated_max_m[br * lvl.w + bc] as f64)
+                (a_block, lvl.dilated_max_m[block] as f64)
             } else {
-                (0.9 * lvl.span_lat_rad, lvl.band_max_m[br] as f64)
+                (0.9 * lvl.span_lat_rad, lvl.band_max_m[band] as f64)
             };
             // The ray's point moves by at most dt / r_min of arc about the centre.
             let dt = a * self.bottom_radius_m;

@@ -34,10 +34,11 @@
 //! ([`Planner::shadowing`]), and the albedo map is read over each pixel's footprint at the
 //! level of detail it spans ([`crate::render::MapFilter::Pixel`]).
 
-use crate::raycast::Tracer;
+use crate::raycast::{Coverage, Tracer};
 use crate::render::settings::SelfShadowing;
 use crate::render::{Integration, MapFilter, PointBudget, Settings};
 use crate::scene::{Pose, Scene};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// The error a frame may have: relative, per lit pixel (median, 99th percentile) and in
@@ -633,43 +634,69 @@ impl FrameProbe {
         let range_m = pose.camera_position_m.length();
         let tracer = Tracer::new(scene, pose);
         let steep = self.relief.map_or(0.0, |r| r.2);
-        // Corner classes: 0 misses, 1 dark, 2 lit (and the Sun's tan of elevation there).
+        // Corner classes: 0 misses, 1 dark, 2 lit ([`probe_class`]; `low`: the Sun under the
+        // DEM's steep slopes there).
         let (du, dv) = (w / G as f64, h / G as f64);
-        let mut class = vec![0u8; (G + 1) * (G + 1)];
-        let (mut lit, mut low) = (0usize, 0usize);
-        for j in 0..=G {
-            for i in 0..=G {
-                let c = match tracer.shape_at(i as f64 * du, j as f64 * dv) {
-                    None => 0,
-                    Some((p, n)) => {
-                        let s = (pose.sun_position_m - p).normalize();
-                        let mu0 = n.dot(s);
-                        if mu0 > 0.0 {
-                            let tan_e = mu0 / (1.0 - mu0 * mu0).max(1e-30).sqrt();
-                            if i < G && j < G {
-                                lit += 1;
-                                low += usize::from(tan_e < steep);
-                            }
-                            2
-                        } else {
-                            1
-                        }
-                    }
-                };
-                class[j * (G + 1) + i] = c;
+        let classes: Vec<(u8, bool)> = (0..(G + 1) * (G + 1))
+            .map(|k| {
+                probe_class(
+                    &tracer,
+                    pose,
+                    steep,
+                    (k % (G + 1)) as f64 * du,
+                    (k / (G + 1)) as f64 * dv,
+                )
+            })
+            .collect();
+        // Each cell's lit area, its share under the steep slopes and the length of the limb
+        // and the terminator in it [px], read at its top-left corner (and edges where its
+        // corners disagree). Where fewer than REFINE_BELOW cells are lit that is too coarse:
+        // a crescent a pixel or two thick, or a body a few pixels across, lies between the
+        // corners, and seen from them alone the frame showed nothing lit and took the
+        // cheapest rung (an Artemis I frame at 161 deg, 1.3 off at the 99th percentile). Its
+        // cells that may hold an edge (corners that disagree, or lines of sight that may meet
+        // the limb between them) are then read on a grid of a pixel or less
+        // ([`refined_cell`]). A ray-cast frame (a mesh) plans from its own estimate, not from
+        // these, and is not refined.
+        let coarse = |corners: &[(u8, bool); 4]| -> [f64; 3] {
+            let (top_left, low) = corners[0];
+            let a = if top_left == 2 { du * dv } else { 0.0 };
+            let edge = corners.iter().any(|c| c.0 == 2) && corners.iter().any(|c| c.0 != 2);
+            [
+                a,
+                if low { a } else { 0.0 },
+                if edge { (du * dv).sqrt() } else { 0.0 },
+            ]
+        };
+        let corners_of = |i: usize, j: usize| {
+            let c = |di: usize, dj: usize| classes[(j + dj) * (G + 1) + i + di];
+            [c(0, 0), c(1, 0), c(0, 1), c(1, 1)]
+        };
+        let lit_cells = (0..G * G)
+            .filter(|&k| classes[(k / G) * (G + 1) + k % G].0 == 2)
+            .count();
+        let refine = lit_cells < REFINE_BELOW && !scene.is_ray_cast();
+        let cell = |k: usize| {
+            let (i, j) = (k % G, k / G);
+            let corners = corners_of(i, j);
+            let (u0, v0) = (i as f64 * du, j as f64 * dv);
+            if refine
+                && (corners.iter().any(|x| x.0 != corners[0].0)
+                    || tracer.coverage(u0, v0, du.max(dv)) == Coverage::Edge)
+            {
+                refined_cell(&tracer, pose, steep, u0, v0, du, dv)
+            } else {
+                coarse(&corners)
             }
-        }
-        let mut edges = 0usize;
-        for j in 0..G {
-            for i in 0..G {
-                let k = j * (G + 1) + i;
-                let c = [class[k], class[k + 1], class[k + G + 1], class[k + G + 2]];
-                if c.contains(&2) && c.iter().any(|&x| x != 2) {
-                    edges += 1;
-                }
-            }
-        }
-        let cell_px = (du * dv).sqrt();
+        };
+        let cells: Vec<[f64; 3]> = if refine {
+            (0..G * G).into_par_iter().map(cell).collect()
+        } else {
+            (0..G * G).map(cell).collect()
+        };
+        let [lit_px, low_px, edge_px] = cells
+            .iter()
+            .fold([0.0; 3], |s, c| [s[0] + c[0], s[1] + c[1], s[2] + c[2]]);
         let phase_deg = pose
             .sun_position_m
             .angle_between(pose.camera_position_m)
@@ -696,20 +723,114 @@ impl FrameProbe {
         }
         Features {
             radius_px: (radius_m / range_m).min(1.0).asin() * f_px,
-            lit_px: lit as f64 * du * dv,
-            edge_px: edges as f64 * cell_px,
+            lit_px,
+            edge_px,
             phase_deg,
             range_m,
             footprint_texels,
             texture,
-            shadow_share: if lit > 0 {
-                low as f64 / lit as f64
-            } else {
-                0.0
-            },
+            shadow_share: if lit_px > 0.0 { low_px / lit_px } else { 0.0 },
             nonlinear_albedo: self.nonlinear_albedo,
         }
     }
+}
+
+/// Below this many lit cells of the 64 x 64 probe, [`FrameProbe::features`] reads the cells
+/// that may hold an edge a pixel apart.
+const REFINE_BELOW: usize = 256;
+
+/// A probe ray's class at `(u, v)` [px]: 0 misses the body, 1 dark, 2 lit; and whether the
+/// Sun there is lower than the DEM's steep slope `steep` (a tangent).
+fn probe_class(tracer: &Tracer, pose: &Pose, steep: f64, u: f64, v: f64) -> (u8, bool) {
+    match tracer.shape_at(u, v) {
+        None => (0, false),
+        Some((p, n)) => {
+            let s = (pose.sun_position_m - p).normalize();
+            let mu0 = n.dot(s);
+            if mu0 > 0.0 {
+                let tan_e = mu0 / (1.0 - mu0 * mu0).max(1e-30).sqrt();
+                (2, tan_e < steep)
+            } else {
+                (1, false)
+            }
+        }
+    }
+}
+
+/// A probe cell `du` x `dv` [px] at `(u0, v0)` on a grid of a pixel or less: its lit area,
+/// the part of it under the steep slopes and the length of the limb and the terminator in it
+/// [px] (sub-cells with a lit corner and another class), each sub-cell read at its top-left
+/// corner as the coarse grid reads its cells.
+fn refined_cell(
+    tracer: &Tracer,
+    pose: &Pose,
+    steep: f64,
+    u0: f64,
+    v0: f64,
+    du: f64,
+    dv: f64,
+) -> [f64; 3] {
+    let (nu, nv) = (du.ceil().max(1.0) as usize, dv.ceil().max(1.0) as usize);
+    let (su, sv) = (du / nu as f64, dv / nv as f64);
+    let mut class = vec![(0u8, false); (nu + 1) * (nv + 1)];
+    for (k, c) in class.iter_mut().enumerate() {
+        let (i, j) = (k % (nu + 1), k / (nu + 1));
+        *c = probe_class(tracer, pose, steep, u0 + i as f64 * su, v0 + j as f64 * sv);
+    }
+    let mut out = [0.0; 3];
+    for j in 0..nv {
+        for i in 0..nu {
+            let k = j * (nu + 1) + i;
+            let c = [
+                class[k].0,
+                class[k + 1].0,
+                class[k + nu + 1].0,
+                class[k + nu + 2].0,
+            ];
+            if class[k].0 == 2 {
+                out[0] += su * sv;
+                if class[k].1 {
+                    out[1] += su * sv;
+                }
+            }
+            if c.contains(&2) && c.iter().any(|&x| x != 2) {
+                out[2] += (su * sv).sqrt();
+            } else if c.contains(&0) && !c.contains(&2) && {
+                // A lune of light along the limb thinner than the grid (a crescent at high
+                // phase): the limb itself, found between the sub-cell's top corners or its
+                // left ones, is lit there. Counted as an edge sub-cell a quarter lit.
+                let limb_lit = |a: (f64, f64), b: (f64, f64), hit_at_a: bool| {
+                    lit_at_limb(tracer, pose, a, b, hit_at_a)
+                };
+                let (u, v) = (u0 + i as f64 * su, v0 + j as f64 * sv);
+                (c[0] != c[1] && limb_lit((u, v), (u + su, v), c[0] != 0))
+                    || (c[0] != c[2] && limb_lit((u, v), (u, v + sv), c[0] != 0))
+            } {
+                out[0] += 0.25 * su * sv;
+                out[2] += (su * sv).sqrt();
+            }
+        }
+    }
+    out
+}
+
+/// Whether the surface is lit where the limb crosses the segment from `a` to `b` [px], whose
+/// line of sight meets the body at `a` (`hit_at_a`) and misses it at `b`, or the reverse:
+/// the limb is found by bisection to a thousandth of the segment.
+fn lit_at_limb(tracer: &Tracer, pose: &Pose, a: (f64, f64), b: (f64, f64), hit_at_a: bool) -> bool {
+    let (mut hit, mut miss) = if hit_at_a { (a, b) } else { (b, a) };
+    let mut surface = tracer.shape_at(hit.0, hit.1);
+    for _ in 0..10 {
+        let m = (0.5 * (hit.0 + miss.0), 0.5 * (hit.1 + miss.1));
+        match tracer.shape_at(m.0, m.1) {
+            Some(s) => {
+                hit = m;
+                surface = Some(s);
+            }
+            None => miss = m,
+        }
+    }
+    surface.is_some_and(|(p, n)| n.dot((pose.sun_position_m - p).normalize()) > 0.0)
 }
 
 /// The per-scene state of the planner: the budget, the model and the scene's probe.

@@ -2,8 +2,9 @@
 //! (Eq. 33) that, unlike a map of one horizon per texel, knows where the Sun stands.
 //!
 //! For every texel of the DEM's grid and each of `n` azimuths `phi_k = 2 pi k / n` (from east
-//! towards north), the terrain is walked along the great circle from the texel's centre, a
-//! quarter texel of latitude a step (ray marching's), and the horizon is the highest
+//! towards north), the terrain is walked along the great circle from the texel's centre, at
+//! ray marching's points (the near field within the first step, then a quarter texel of
+//! latitude a step), and the horizon is the highest
 //! elevation seen, as its sine, above the sphere's tangent plane at the point `(R + h) up`:
 //! `sin e = (r cos g - r0) / |q - p|` for terrain at radius `r` and arc `g`. A direction from
 //! the point is hidden when it rises less than the horizon in its azimuth: that is ray
@@ -53,6 +54,9 @@ pub struct DemHorizon {
     /// `(sin g, cos g)` of the walk's arcs `g`, out to where no terrain can rise above the
     /// horizontal of the lowest point.
     arcs: Vec<(f64, f64)>,
+    /// The same of the near field within the first step, walked first as ray marching tests
+    /// it ([`super::NEAR_FIELD_STEPS`]).
+    near: Vec<(f64, f64)>,
     /// Per texel, the tangent of the steepest slope within the walk's reach.
     reach_slope: Vec<f32>,
     chunks_per_row: usize,
@@ -84,6 +88,10 @@ impl DemHorizon {
             radius_m,
             top_m,
             arcs,
+            near: super::NEAR_FIELD_STEPS
+                .iter()
+                .map(|f| (f * step).sin_cos())
+                .collect(),
             reach_slope: reach_slope(&heights, radius_m, far),
             chunks_per_row,
             chunks: (0..chunks_per_row * heights.height)
@@ -185,11 +193,12 @@ impl DemHorizon {
         let (lon0, lat) = heights.texel_centre(first, row);
         let up = crate::geometry::unit_from_lon_lat(lon0, lat);
         let (east, north) = crate::geometry::east_north(up);
-        let mut path = Vec::with_capacity(n * self.arcs.len());
+        let per_walk = self.near.len() + self.arcs.len();
+        let mut path = Vec::with_capacity(n * per_walk);
         for k in 0..n {
             let phi = std::f64::consts::TAU * k as f64 / n as f64;
             let along = phi.cos() * east + phi.sin() * north;
-            for &(s, c) in &self.arcs {
+            for &(s, c) in self.near.iter().chain(&self.arcs) {
                 let q: DVec3 = up * c + along * s;
                 let (lon, lat) = crate::geometry::lon_lat(q);
                 path.push((lon - lon0, lat));
@@ -212,8 +221,14 @@ impl DemHorizon {
                 x / (x * x + y * y).sqrt()
             };
             let rise = self.reach_slope[texel] as f64 * segment_m;
-            for (value, walk) in values.iter_mut().zip(path.chunks(self.arcs.len())) {
+            for (value, walk) in values.iter_mut().zip(path.chunks(per_walk)) {
                 let mut best = 0.0f64;
+                let (near, walk) = walk.split_at(self.near.len());
+                for (&sc, &(dl, la)) in self.near.iter().zip(near) {
+                    if let Some(h) = heights.sample(lon + dl, la) {
+                        best = best.max(sin_elevation(self.radius_m + h, sc));
+                    }
+                }
                 // Segment by segment: sampled a step at a time only where the bound on its
                 // terrain could rise above the horizon found so far. What is skipped cannot
                 // change the result (as far as the one-sided slopes bound the bilinear DEM's):

@@ -163,8 +163,9 @@ impl Terrain {
             return false; // the BRDF's cosine on the sphere already says so
         }
         let h0 = self.height_at(up).unwrap_or(0.0);
-        // Clear of the ground it starts on: a thousand times the hit tolerance above it.
-        let start = up * (self.radius_m + h0 + 1e-6 * self.radius_m);
+        // Clear of the ground it starts on (a thousand times the hit tolerance above it), as
+        // the pipeline's marcher's rays leave it.
+        let start = up * (self.radius_m + h0 + crate::body::SHADOW_RAY_LIFT * self.radius_m);
         self.intersect(start, toward, 0.0).is_some()
     }
 }

@@ -795,19 +795,18 @@ fn refined_cell(
             }
             if c.contains(&2) && c.iter().any(|&x| x != 2) {
                 out[2] += (su * sv).sqrt();
-            } else if c.contains(&0) && !c.contains(&2) && {
+            } else if c.contains(&0) && !c.contains(&2) {
                 // A lune of light along the limb thinner than the grid (a crescent at high
                 // phase): the limb itself, found between the sub-cell's top corners or its
                 // left ones, is lit there. Counted as an edge sub-cell a quarter lit.
-                let limb_lit = |a: (f64, f64), b: (f64, f64), hit_at_a: bool| {
-                    lit_at_limb(tracer, pose, a, b, hit_at_a)
-                };
                 let (u, v) = (u0 + i as f64 * su, v0 + j as f64 * sv);
-                (c[0] != c[1] && limb_lit((u, v), (u + su, v), c[0] != 0))
-                    || (c[0] != c[2] && limb_lit((u, v), (u, v + sv), c[0] != 0))
-            } {
-                out[0] += 0.25 * su * sv;
-                out[2] += (su * sv).sqrt();
+                let hit = c[0] != 0;
+                if (c[0] != c[1] && lit_at_limb(tracer, pose, (u, v), (u + su, v), hit))
+                    || (c[0] != c[2] && lit_at_limb(tracer, pose, (u, v), (u, v + sv), hit))
+                {
+                    out[0] += 0.25 * su * sv;
+                    out[2] += (su * sv).sqrt();
+                }
             }
         }
     }

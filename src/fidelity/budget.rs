@@ -661,7 +661,7 @@ impl FrameProbe {
         let coarse = |corners: &[(u8, bool); 4]| -> [f64; 3] {
             let (top_left, low) = corners[0];
             let a = if top_left == 2 { du * dv } else { 0.0 };
-            let edge = corners.iter().any(|c| c.0 == 2) && corners.iter().any(|c| c.0 != 2);
+            let edge = holds_edge(corners.map(|c| c.0));
             [
                 a,
                 if low { a } else { 0.0 },
@@ -757,6 +757,12 @@ fn probe_class(tracer: &Tracer, pose: &Pose, steep: f64, u: f64, v: f64) -> (u8,
     }
 }
 
+/// Whether a cell whose corners have these [`probe_class`]es holds the limb or the terminator:
+/// a lit corner and another.
+fn holds_edge(corners: [u8; 4]) -> bool {
+    corners.contains(&2) && corners.iter().any(|&x| x != 2)
+}
+
 /// A probe cell `du` x `dv` [px] at `(u0, v0)` on a grid of a pixel or less: its lit area,
 /// the part of it under the steep slopes and the length of the limb and the terminator in it
 /// [px] (sub-cells with a lit corner and another class), each sub-cell read at its top-left
@@ -793,7 +799,7 @@ fn refined_cell(
                     out[1] += su * sv;
                 }
             }
-            if c.contains(&2) && c.iter().any(|&x| x != 2) {
+            if holds_edge(c) {
                 out[2] += (su * sv).sqrt();
             } else if c.contains(&0) && !c.contains(&2) {
                 // A lune of light along the limb thinner than the grid (a crescent at high

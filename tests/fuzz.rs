@@ -74,6 +74,7 @@ fn random_message(rng: &mut Pcg64) -> Message {
                 predicted_p99: f(rng),
                 predicted_total: f(rng),
                 meets_budget: rng.random(),
+                map_filter: rng.random_range(0..3),
             }),
             ..AckMsg::dropped(0, 0)
         }),

@@ -386,6 +386,10 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
         .ok()
         .and_then(|v| v.as_str().map(str::to_string))
         .unwrap_or_default();
+    let map_filter = serde_json::to_value(p.map_filter)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default();
     vec![
         Card::new(
             "FIDELITY",
@@ -404,6 +408,11 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
             "chosen: boundary Gauss nodes",
         ),
         Card::new("SHADOWS", Value::Str(shadows), "chosen: self-shadowing"),
+        Card::new(
+            "MAPFILT",
+            Value::Str(map_filter),
+            "chosen: albedo map read per area or pixel",
+        ),
         f(
             "PREDMED",
             p.predicted.median,

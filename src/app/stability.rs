@@ -31,6 +31,7 @@ const REFERENCE: ReferenceSettings = ReferenceSettings {
     max_depth: 8,
     edge_depth: 8,
     light_depth: 5,
+    corner_depth: 7,
     near_depth: 3,
     max_cells_per_px: 2048,
     threads: 0,

@@ -40,6 +40,7 @@ pub struct FrameCheck {
     /// Ray-cast frames: the rays cast (the budget's refinement included).
     pub rays: usize,
     pub self_shadowing: String,
+    pub map_filter: String,
     pub predicted_median: f64,
     pub predicted_p99: f64,
     pub predicted_total: f64,
@@ -215,6 +216,7 @@ pub fn run(
             points_per_pixel: plan.points_per_pixel,
             rays: frame.stats.surface_samples,
             self_shadowing: format!("{:?}", plan.self_shadowing),
+            map_filter: format!("{:?}", plan.map_filter),
             predicted_median: plan.predicted.median,
             predicted_p99: plan.predicted.p99,
             predicted_total: plan.predicted.total,
@@ -233,11 +235,12 @@ pub fn run(
             rung_meets: ok_s.join(" "),
         };
         progress(&format!(
-            "row {row}: {:.0} km, phase {:.1}: ppp {} {:?} in {budget_ms:.1} ms; median {:.2e} p99 {:.2e} total {:.2e} (predicted {:.1e} / {:.1e} / {:.1e}){}; reference {ref_s:.1} s",
+            "row {row}: {:.0} km, phase {:.1}: ppp {} {:?} map {:?} in {budget_ms:.1} ms; median {:.2e} p99 {:.2e} total {:.2e} (predicted {:.1e} / {:.1e} / {:.1e}){}; reference {ref_s:.1} s",
             c.range_m / 1e3,
             c.phase_deg,
             c.points_per_pixel,
             plan.self_shadowing,
+            plan.map_filter,
             e.median,
             e.p99,
             e.total,

@@ -178,7 +178,7 @@ pub struct AckMsg {
 }
 
 /// Bytes of the binary ack's fidelity tail.
-const FIDELITY_TAIL: usize = 35;
+const FIDELITY_TAIL: usize = 36;
 
 /// The fidelity planner's choice for one frame ([`crate::fidelity::budget::Plan`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -191,6 +191,10 @@ pub struct AckFidelity {
     pub predicted_p99: f64,
     pub predicted_total: f64,
     pub meets_budget: bool,
+    /// How the albedo map was read: 0 per quadrangle's point, 1 per quadrangle's area, 2
+    /// over each pixel's footprint.
+    #[serde(default)]
+    pub map_filter: u8,
 }
 
 impl AckFidelity {
@@ -208,6 +212,11 @@ impl AckFidelity {
             predicted_p99: p.predicted.p99,
             predicted_total: p.predicted.total,
             meets_budget: p.meets_budget,
+            map_filter: match p.map_filter {
+                crate::render::MapFilter::Point => 0,
+                crate::render::MapFilter::Area => 1,
+                crate::render::MapFilter::Pixel => 2,
+            },
         }
     }
 }
@@ -390,6 +399,7 @@ impl Message {
                     w.f64(f.predicted_p99);
                     w.f64(f.predicted_total);
                     w.u8(u8::from(f.meets_budget));
+                    w.u8(f.map_filter);
                 }
                 if let Some(n) = a.recording_failed {
                     w.u64(n);
@@ -520,7 +530,7 @@ impl Message {
                     clipped_below_dark: r.u64()?,
                     clipped_above_max: r.u64()?,
                     calibration_id: r.str()?,
-                    // Optional tails, told apart by their lengths: fidelity (35 bytes),
+                    // Optional tails, told apart by their lengths: fidelity (36 bytes),
                     // then the recording's failures (8).
                     fidelity: if payload.len() - r.i >= FIDELITY_TAIL {
                         Some(AckFidelity {
@@ -531,6 +541,7 @@ impl Message {
                             predicted_p99: r.f64()?,
                             predicted_total: r.f64()?,
                             meets_budget: r.u8()? != 0,
+                            map_filter: r.u8()?,
                         })
                     } else {
                         None
@@ -895,6 +906,7 @@ mod tests {
                     predicted_p99: 1.2e-2,
                     predicted_total: 3e-6,
                     meets_budget: true,
+                    map_filter: 2,
                 }),
                 recording_failed: None,
             }),

@@ -329,8 +329,9 @@ fn reference_of(
 /// What the reference computes, in the cache's key: raised whenever a change of the reference
 /// changes its images, so that no cache made before is read as its image. 2 and 3: a DEM that
 /// tilts the normals only weighs the light by the DEM normal's `cos(theta_r)` (Eq. 37) and
-/// hides what the terrain hides from the camera (Eq. 33).
-const REFERENCE_MODEL: u32 = 3;
+/// hides what the terrain hides from the camera (Eq. 33). 4: cells near an edge whose rays
+/// agree ask their corners too (`corner_depth`), which finds a sub-pixel lune's light.
+const REFERENCE_MODEL: u32 = 4;
 
 /// The reference of `scene` from `pose`, from the cache in `dir` (keyed by the SHA-256 of
 /// `text`, the scene file's text, the pose, the settings and [`REFERENCE_MODEL`]) or rendered

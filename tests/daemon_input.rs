@@ -660,5 +660,12 @@ fn a_budgeted_daemon_reports_each_frames_plan_in_the_ack_and_status() {
         Some(f.predicted_median)
     );
     assert_eq!(plan["meets_budget"].as_bool(), Some(f.meets_budget));
+    // The ack's last byte names how the map was read, as the plan does.
+    let filters = ["point", "area", "pixel"];
+    assert_eq!(
+        plan["map_filter"].as_str(),
+        filters.get(f.map_filter as usize).copied(),
+        "{f:?}"
+    );
     assert_eq!(s["last_frame"]["plan"], *plan, "the dashboard's report");
 }

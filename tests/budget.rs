@@ -164,6 +164,16 @@ fn a_figure_no_rung_can_meet_does_not_hold_back_the_others() {
     assert_eq!((p.points_per_pixel, p.meets_budget), (0.5, true), "{p:?}");
 }
 
+/// The Moon of [`spec`] at 171 deg of phase from 8 radii, with `render`.
+fn crescent(render: &'static str) -> optistim::config::Config {
+    let a = 171f64.to_radians();
+    let spec = SceneSpec {
+        sun_m: [AU * a.cos(), AU * a.sin(), 0.0],
+        ..spec(render)
+    };
+    optistim::config::parse(&spec.toml(), "t").unwrap()
+}
+
 /// A crescent thinner than a pixel (phase 171 deg from 8 lunar radii, where the Moon's lit and
 /// visible caps overlap by 1.8 deg of arc) lies between the planner's 64 x 64 probe rays. Seen from them alone the frame
 /// showed nothing lit, took the cheapest rung and said it met the budget (an Artemis I frame
@@ -171,12 +181,7 @@ fn a_figure_no_rung_can_meet_does_not_hold_back_the_others() {
 /// hold the limb a pixel apart, and the limb itself where it passes between its rays.
 #[test]
 fn a_crescent_thinner_than_a_pixel_is_seen_by_the_planner() {
-    let a = 171f64.to_radians();
-    let crescent = SceneSpec {
-        sun_m: [AU * a.cos(), AU * a.sin(), 0.0],
-        ..spec("fidelity = \"budget\"")
-    };
-    let cfg = optistim::config::parse(&crescent.toml(), "t").unwrap();
+    let cfg = crescent("fidelity = \"budget\"");
     let plan = cfg.planner().unwrap().plan(&cfg.scene, &cfg.pose);
     let f = plan.features;
     assert!((f.phase_deg - 171.0).abs() < 1e-2, "{f:?}");
@@ -206,12 +211,7 @@ fn a_crescent_thinner_than_a_pixel_is_seen_by_the_planner() {
 /// 1.7e-6.
 #[test]
 fn the_reference_holds_the_light_of_a_sub_pixel_lune() {
-    let a = 171f64.to_radians();
-    let crescent = SceneSpec {
-        sun_m: [AU * a.cos(), AU * a.sin(), 0.0],
-        ..spec("integration = \"exact\"\npoints_per_pixel = 16.0")
-    };
-    let cfg = optistim::config::parse(&crescent.toml(), "t").unwrap();
+    let cfg = crescent("integration = \"exact\"\npoints_per_pixel = 16.0");
     let frame = Renderer::new(0)
         .unwrap()
         .render(&cfg.scene, &cfg.pose, &cfg.settings)

@@ -223,7 +223,8 @@ pub struct Plan {
     pub raycast_edge_samples: u32,
     pub boundary_nodes: u32,
     pub self_shadowing: SelfShadowing,
-    /// How the albedo map is read ([`Planner::map_filter`]).
+    /// How the albedo map is read ([`Planner::map_filter`]; a ray-cast frame reports the
+    /// scene's own setting, its rays reading the map where they land).
     pub map_filter: MapFilter,
     pub predicted: Predicted,
     /// Whether the prediction meets the budget (false: no rung is predicted to meet it; the

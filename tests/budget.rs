@@ -113,6 +113,7 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
     let f = &json["fidelity"];
     assert!(f["points_per_pixel"].as_f64().unwrap() > 0.0, "{json}");
     assert!(f["predicted"]["median"].as_f64().is_some(), "{json}");
+    assert_eq!(f["map_filter"], "pixel", "{json}");
     let fits = std::fs::read(out.join("power.fits")).unwrap();
     let header = String::from_utf8_lossy(&fits[..2880 * 2]);
     for key in [
@@ -121,6 +122,8 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
         "PREDMED =",
         "BUDP99  =",
         "BUDMET  =",
+        "SHADOWS = 'off",
+        "MAPFILT = 'pixel",
     ] {
         assert!(header.contains(key), "{key} missing");
     }

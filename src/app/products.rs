@@ -382,14 +382,8 @@ impl FrameRecord {
 /// The FITS cards of a budgeted frame: what the planner chose and the error it predicts.
 pub fn plan_cards(p: &Plan) -> Vec<Card> {
     let f = |k: &str, v: f64, c: &str| Card::new(k, Value::Float(v), c);
-    // A setting as its scene file spells it ("ray_marching", "pixel").
-    let spelled = |v: serde_json::Result<serde_json::Value>| {
-        v.ok()
-            .and_then(|v| v.as_str().map(str::to_string))
-            .unwrap_or_default()
-    };
-    let shadows = spelled(serde_json::to_value(p.self_shadowing));
-    let map_filter = spelled(serde_json::to_value(p.map_filter));
+    let shadows = crate::config::spelled(&p.self_shadowing);
+    let map_filter = crate::config::spelled(&p.map_filter);
     vec![
         Card::new(
             "FIDELITY",

@@ -91,6 +91,15 @@ impl Config {
     }
 }
 
+/// A setting as the scene file spells it (`"ray_marching"`, `"pixel"`, `"lockstep"`): the
+/// serde name of a unit variant, empty for anything else.
+pub fn spelled<T: serde::Serialize>(value: &T) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default()
+}
+
 /// Reads and validates a scene file.
 pub fn load(path: &Path) -> Result<Config, ConfigError> {
     let file = path.display().to_string();

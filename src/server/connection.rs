@@ -255,10 +255,7 @@ impl Conn {
                         ),
                     ));
                 }
-                let mode = serde_json::to_value(self.shared.runtime().mode)
-                    .ok()
-                    .and_then(|v| v.as_str().map(str::to_string))
-                    .unwrap_or_default();
+                let mode = crate::config::spelled(&self.shared.runtime().mode);
                 self.out.send(Message::HelloAck {
                     version: protocol::VERSION,
                     server: format!("optistim {}", env!("CARGO_PKG_VERSION")),

@@ -50,6 +50,10 @@ enum Command {
         /// The reference's deepest subdivision (halvings of a pixel's side).
         #[arg(long, default_value_t = 10)]
         max_depth: u32,
+        /// Which reference: `auto` is the exact one for a lone mesh body through an
+        /// undistorted camera (polygons clipped, no rays), else the cubature.
+        #[arg(long, value_enum, default_value = "auto")]
+        reference_method: optistim::raycast::reference::ReferenceMethod,
     },
     /// Render every pose of a trajectory (or shard I of N) to a dataset folder: per frame
     /// DIR/frames/NNNNNN/{power,signal,depth}.fits, image.png and frame.json, and a manifest.
@@ -130,6 +134,9 @@ enum Command {
         tolerance: f64,
         #[arg(long, default_value_t = 8)]
         max_depth: u32,
+        /// Which reference (as `render --reference-method`).
+        #[arg(long, value_enum, default_value = "auto")]
+        reference_method: optistim::raycast::reference::ReferenceMethod,
     },
     /// Fits the fidelity planner's error model on the ladder rows of one or more sweep CSVs.
     FitModel {
@@ -331,15 +338,19 @@ fn run() -> anyhow::Result<()> {
             reference,
             tolerance,
             max_depth,
+            reference_method,
         } => {
             let cfg = config::load(&scene)?;
             let method = if reference {
-                app::render::Method::Reference(optistim::raycast::reference::ReferenceSettings {
-                    tolerance,
-                    max_depth,
-                    threads: cfg.settings.threads,
-                    ..Default::default()
-                })
+                app::render::Method::Reference(
+                    optistim::raycast::reference::ReferenceSettings {
+                        tolerance,
+                        max_depth,
+                        threads: cfg.settings.threads,
+                        ..Default::default()
+                    },
+                    reference_method,
+                )
             } else {
                 app::render::Method::Quadrangle
             };
@@ -469,6 +480,7 @@ fn run() -> anyhow::Result<()> {
             out,
             tolerance,
             max_depth,
+            reference_method,
         } => {
             let cfg = config::load(&scene)?;
             let reference = optistim::raycast::reference::ReferenceSettings {
@@ -482,6 +494,7 @@ fn run() -> anyhow::Result<()> {
                 &trajectory,
                 frames,
                 &reference,
+                reference_method,
                 &out,
                 |line| eprintln!("{line}"),
             )?;

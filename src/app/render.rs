@@ -6,7 +6,7 @@ use super::products;
 use crate::config::Config;
 use crate::fidelity::budget::Plan;
 use crate::io::fits::{self, Bitpix};
-use crate::raycast::reference::{self, ReferenceReport, ReferenceSettings};
+use crate::raycast::reference::{self, ReferenceMethod, ReferenceReport, ReferenceSettings};
 use crate::render::Renderer;
 use crate::stimulator::calibration::ClipCounts;
 use crate::stimulator::camera::SimulatedCamera;
@@ -78,9 +78,9 @@ pub struct StimulatorSummary {
 pub enum Method {
     /// The quadrangle pipeline with the scene's `[render]` settings.
     Quadrangle,
-    /// The converged reference ([`crate::raycast::reference`]); it also writes `error.fits`,
-    /// each pixel's estimated error [W].
-    Reference(ReferenceSettings),
+    /// The converged reference ([`crate::raycast::reference`], by the method given); it also
+    /// writes `error.fits`, each pixel's estimated error [W].
+    Reference(ReferenceSettings, ReferenceMethod),
 }
 
 /// The settings `optistim render` renders `pose` of `config` with: the scene's, or what the
@@ -111,8 +111,8 @@ pub fn run(
                 None,
             )
         }
-        Method::Reference(s) => {
-            let r = reference::render(&config.scene, pose, &s)?;
+        Method::Reference(s, m) => {
+            let r = reference::render_by(&config.scene, pose, &s, m)?;
             let mut settings = config.settings.clone();
             settings.depth = true;
             (

@@ -23,7 +23,7 @@ use super::AppError;
 use crate::config::Config;
 use crate::fidelity::budget::{Budget, LADDER, Planner};
 use crate::fidelity::metrics::{FrameError, frame_error};
-use crate::raycast::reference::ReferenceSettings;
+use crate::raycast::reference::{ReferenceMethod, ReferenceSettings};
 use crate::render::{Renderer, Settings};
 use serde::Serialize;
 use std::path::Path;
@@ -140,6 +140,7 @@ pub fn run(
     trajectory: &Path,
     frames: usize,
     reference: &ReferenceSettings,
+    method: ReferenceMethod,
     out: &Path,
     mut progress: impl FnMut(&str),
 ) -> Result<VerifyReport, AppError> {
@@ -187,6 +188,7 @@ pub fn run(
             &config.scene,
             &pose,
             reference,
+            method,
             &out.join("references"),
         )?;
         let e = frame_error(&frame.pl, &reference_pl, w, h);

@@ -21,6 +21,7 @@
 
 mod bins;
 pub mod estimate;
+pub mod exact;
 pub mod facet_light;
 pub mod raster;
 pub mod reference;

@@ -88,9 +88,52 @@ impl Default for ReferenceSettings {
     }
 }
 
+/// Which reference a frame gets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ReferenceMethod {
+    /// The exact one ([`super::exact`]) where it applies (a lone mesh body through an
+    /// undistorted camera), else the adaptive cubature of ray casts of this module.
+    #[default]
+    Auto,
+    /// The adaptive cubature of ray casts, whatever the scene.
+    Cubature,
+    /// The exact one, or an error naming why it does not apply.
+    Exact,
+}
+
+impl ReferenceMethod {
+    /// The method that `scene` seen from `pose` gets: [`ReferenceMethod::Cubature`] or
+    /// [`ReferenceMethod::Exact`].
+    pub fn resolve(self, scene: &Scene, pose: &Pose) -> ReferenceMethod {
+        match self {
+            ReferenceMethod::Auto if super::exact::applies(scene, pose).is_ok() => {
+                ReferenceMethod::Exact
+            }
+            ReferenceMethod::Auto => ReferenceMethod::Cubature,
+            m => m,
+        }
+    }
+}
+
+/// The reference of `scene` seen from `pose` by `method` (the cubature with `settings`).
+pub fn render_by(
+    scene: &Scene,
+    pose: &Pose,
+    settings: &ReferenceSettings,
+    method: ReferenceMethod,
+) -> Result<ReferenceFrame, RenderError> {
+    match method.resolve(scene, pose) {
+        ReferenceMethod::Exact => super::exact::render(scene, pose),
+        _ => render(scene, pose, settings),
+    }
+}
+
 /// How converged a reference frame is.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct ReferenceReport {
+    /// `"cubature"` (with its settings) or `"exact"` ([`super::exact`]).
+    pub method: &'static str,
     pub settings: Option<ReferenceSettings>,
     /// Rays cast.
     pub rays: u64,
@@ -365,6 +408,7 @@ fn render_camera(
     };
     let seconds = t0.elapsed().as_secs_f64();
     let report = ReferenceReport {
+        method: "cubature",
         settings: Some(*settings),
         rays: results.iter().map(|r| r.2).sum::<u64>() + 9 * (w * h) as u64,
         cells: results.iter().map(|r| r.3).sum(),

@@ -42,7 +42,7 @@ use super::AppError;
 use crate::config::Config;
 use crate::fidelity::budget::{ErrorModel, Features, FitRow, FrameProbe, Planner};
 use crate::fidelity::metrics::{FrameError, frame_error};
-use crate::raycast::reference::{self, ReferenceSettings};
+use crate::raycast::reference::{self, ReferenceMethod, ReferenceSettings};
 use crate::render::Renderer;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -323,7 +323,14 @@ fn reference_of(
     dir: &Path,
 ) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
     let c = &scene.config;
-    cached_reference(&scene.text, &c.scene, &c.pose, settings, dir)
+    cached_reference(
+        &scene.text,
+        &c.scene,
+        &c.pose,
+        settings,
+        ReferenceMethod::Auto,
+        dir,
+    )
 }
 
 /// What the reference computes, in the cache's key: raised whenever a change of the reference
@@ -333,24 +340,27 @@ fn reference_of(
 /// agree ask their corners too (`corner_depth`), which finds a sub-pixel lune's light.
 const REFERENCE_MODEL: u32 = 4;
 
-/// The reference of `scene` from `pose`, from the cache in `dir` (keyed by the SHA-256 of
-/// `text`, the scene file's text, the pose, the settings and [`REFERENCE_MODEL`]) or rendered
-/// and cached:
+/// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
+const EXACT_MODEL: u32 = 1;
+
+/// The reference of `scene` from `pose` by `method`, from the cache in `dir` (keyed by the
+/// SHA-256 of `text`, the scene file's text, the pose, and the cubature's settings and
+/// [`REFERENCE_MODEL`] or the exact reference's [`EXACT_MODEL`]) or rendered and cached:
 /// `(image, seconds it took, its estimated total error, its estimated p99, reused)`.
 pub fn cached_reference(
     text: &str,
     scene: &crate::scene::Scene,
     p: &crate::scene::Pose,
     settings: &ReferenceSettings,
+    method: ReferenceMethod,
     dir: &Path,
 ) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
-    let key = crate::io::sha256_hex(
+    let method = method.resolve(scene, p);
+    let how = if method == ReferenceMethod::Exact {
+        format!("exact model {EXACT_MODEL}")
+    } else {
         format!(
-            "{}\n{:?} {:?} {:?}\n{:?}{}",
-            text,
-            p.camera_position_m,
-            p.body_from_camera,
-            p.sun_position_m,
+            "{:?}{}",
             settings,
             // Model 1 (no suffix) keeps the caches made before the model was numbered.
             if REFERENCE_MODEL == 1 {
@@ -358,6 +368,12 @@ pub fn cached_reference(
             } else {
                 format!(" model {REFERENCE_MODEL}")
             }
+        )
+    };
+    let key = crate::io::sha256_hex(
+        format!(
+            "{}\n{:?} {:?} {:?}\n{}",
+            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, how,
         )
         .as_bytes(),
     );
@@ -375,7 +391,7 @@ pub fn cached_reference(
             .collect();
         return Ok((v[3..].to_vec(), v[0], v[1], v[2], true));
     }
-    let r = reference::render(scene, p, settings)?;
+    let r = reference::render_by(scene, p, settings, method)?;
     let head = [
         r.report.seconds,
         r.report.est_error_total,

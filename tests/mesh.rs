@@ -821,31 +821,86 @@ fn estimates_bound_and_budget_holds(cfg: &Config, reference: &[f64], edge_sample
             "{n}: {est:?} {e:?}"
         );
     }
-    let planner = Planner::new(
-        &cfg.scene,
-        &cfg.settings,
-        Budget::default(),
-        ErrorModel::shipped().unwrap(),
+    // The edges' rays refined to the budget: what the planner plans where clipping does not
+    // apply (several bodies, a distorted camera, scattered light).
+    let b = Budget::default();
+    let refined = Settings {
+        raycast_edge_samples: 8,
+        raycast_budget: Some(optistim::raycast::estimate::RaycastBudget {
+            p99: b.p99,
+            total: b.total,
+        }),
+        ..cfg.settings.clone()
+    };
+    let f = renderer.render(&cfg.scene, &cfg.pose, &refined).unwrap();
+    let e = frame_error(&f.pl, reference, w, h);
+    let est = f.stats.estimated_error.unwrap();
+    eprintln!(
+        "edges refined: measured {e:?}\n  estimated {est:?}, {} rays",
+        f.stats.surface_samples
     );
+    assert!(
+        e.p99 <= b.p99 && e.total <= b.total && e.median <= b.median,
+        "{e:?}"
+    );
+    assert!(
+        est.p99 <= b.p99 && est.p99 >= e.p99 && est.total >= e.total,
+        "{est:?} {e:?}"
+    );
+    // The planner clips this lone mesh seen through a pinhole (no edge rays): against the
+    // cubature's reference it meets the budget, and its own estimate says it does.
+    let planner = Planner::new(&cfg.scene, &cfg.settings, b, ErrorModel::shipped().unwrap());
     let mut plan = planner.plan(&cfg.scene, &cfg.pose);
-    assert_eq!(plan.raycast_edge_samples, 8);
+    assert!(
+        plan.raycast_clip && plan.raycast_edge_samples == 0,
+        "{plan:?}"
+    );
     let f = renderer
         .render(&cfg.scene, &cfg.pose, &plan.settings)
         .unwrap();
     plan.observe(&f.stats);
     let e = frame_error(&f.pl, reference, w, h);
-    let est = f.stats.estimated_error.unwrap();
     eprintln!(
-        "budget: measured {e:?}\n  estimated {est:?}, {} rays",
-        f.stats.surface_samples
+        "budget (clipped): measured {e:?}\n  estimated {:?}",
+        plan.predicted
     );
-    let b = Budget::default();
     assert!(
         e.p99 <= b.p99 && e.total <= b.total && e.median <= b.median,
         "{e:?}"
     );
-    assert!(plan.meets_budget && plan.predicted.p99 == est.p99 && est.p99 <= b.p99);
-    assert!(est.p99 >= e.p99 && est.total >= e.total, "{est:?} {e:?}");
+    assert!(plan.meets_budget && plan.predicted.p99 < 1e-4, "{plan:?}");
+}
+
+/// A clipped frame (`render.raycast_clip`: facets clipped exactly, their light from
+/// quadratic elements) against the exact reference (the same clipping, the light evaluated
+/// at seven points of every cut): what is left is the elements' error, which the frame's own
+/// estimate bounds. Bennu 96 x 96 at 41 and 131 deg.
+#[test]
+fn a_clipped_mesh_frame_is_the_exact_reference_but_for_its_elements() {
+    use optistim::fidelity::metrics::frame_error;
+    use optistim::raycast::exact;
+    for sun in [[1.26e11, 1.06e11, 0.0], [-1.1e11, 1.26e11, 0.0]] {
+        let cfg = bennu_small_lit("", sun);
+        let ex = exact::render(&cfg.scene, &cfg.pose).unwrap();
+        let mut s = cfg.settings.clone();
+        s.raycast_clip = true;
+        let f = Renderer::new(0)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &s)
+            .unwrap();
+        let e = frame_error(&f.pl, &ex.frame.pl, 96, 96);
+        let est = f.stats.estimated_error.unwrap();
+        eprintln!("clipped against exact {e:?}\n  estimated {est:?}");
+        // Measured: p99 2.8e-7 and 1.6e-7, total 3e-10 and 6e-10; the estimates 1e-6.
+        assert!(e.p99 < 1e-5 && e.total < 1e-7 && e.lit_px > 500, "{e:?}");
+        assert!(est.p99 >= e.p99 && est.total >= e.total, "{est:?} {e:?}");
+        // Bit for bit the same frame again.
+        let again = Renderer::new(1)
+            .unwrap()
+            .render(&cfg.scene, &cfg.pose, &s)
+            .unwrap();
+        assert_eq!(f.pl, again.pl);
+    }
 }
 
 /// Bennu at 100 deg of phase, its shadows long: starting the budget's refinement at 4 rays

@@ -397,6 +397,11 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
             "chosen: first rays/px side at edges (ray cast)",
         ),
         Card::new(
+            "CLIPPED",
+            Value::Bool(p.raycast_clip),
+            "chosen: mesh facets clipped exactly",
+        ),
+        Card::new(
             "BNODES",
             Value::Int(p.boundary_nodes as i64),
             "chosen: boundary Gauss nodes",

@@ -1677,6 +1677,9 @@ impl Validator<'_> {
         if let Some(q) = r.raycast_quadratic_light {
             s.raycast_quadratic_light = q;
         }
+        if let Some(c) = r.raycast_clip {
+            s.raycast_clip = c;
+        }
         if let Some(k) = r.scattering_orders {
             if !(0..=20).contains(&k) {
                 return self.err("render.scattering_orders", k, "an integer in [0, 20]");

@@ -309,6 +309,9 @@ pub struct RawRender {
     pub raycast_edge_samples: Option<i64>,
     /// Mesh bodies: a large facet's light interpolated (true, default) or evaluated per sample.
     pub raycast_quadratic_light: Option<bool>,
+    /// A mesh body alone through a pinhole: each facet's lit and seen part clipped exactly
+    /// (no edge rays).
+    pub raycast_clip: Option<bool>,
     /// Mesh bodies: orders of scattered light in the image (0: none).
     pub scattering_orders: Option<i64>,
     /// `fixed` (default: these settings for every frame) or `budget` (per frame, the

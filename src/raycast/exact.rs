@@ -115,11 +115,13 @@ struct View {
 
 impl View {
     /// `project` gives a vertex's position in the view and its depth (larger nearer);
-    /// `window` the region of the view that matters (`None`: all of it).
+    /// `window` the region of the view that matters (`None`: all of it); `hides` whether a
+    /// facet may hide another (only those binned are asked).
     fn new(
         m: &Mesh,
         project: impl Fn(DVec3) -> (DVec2, f64),
         window: Option<(DVec2, DVec2)>,
+        hides: impl Fn(usize) -> bool,
     ) -> View {
         let pv: Vec<(DVec2, f64)> = m.vertices_m().iter().map(|v| project(*v)).collect();
         let n = m.facets().len();
@@ -143,7 +145,7 @@ impl View {
             lo.push(t[0].min(t[1]).min(t[2]));
             hi.push(t[0].max(t[1]).max(t[2]));
         }
-        let bins = Bins::new(&lo, &hi, &area2, window);
+        let bins = Bins::new(&lo, &hi, &area2, window, hides);
         View {
             tris,
             depths,
@@ -173,8 +175,12 @@ impl View {
         let min_area = SLIVER * 0.5 * self.area2[f];
         let deepest = self.depths[f].iter().copied().fold(f64::INFINITY, f64::min);
         let tri: Poly = self.tris[f].to_vec();
-        self.bins
-            .candidates(self.lo[f], self.hi[f], &mut scratch.candidates);
+        self.bins.candidates(
+            self.lo[f],
+            self.hi[f],
+            &mut scratch.candidates,
+            &mut scratch.seen,
+        );
         for &g in &scratch.candidates {
             let g = g as usize;
             if g == f
@@ -222,9 +228,16 @@ struct Bins {
 }
 
 impl Bins {
-    fn new(lo: &[DVec2], hi: &[DVec2], area2: &[f64], window: Option<(DVec2, DVec2)>) -> Bins {
+    fn new(
+        lo: &[DVec2],
+        hi: &[DVec2],
+        area2: &[f64],
+        window: Option<(DVec2, DVec2)>,
+        hides: impl Fn(usize) -> bool,
+    ) -> Bins {
         let keep = |f: usize| {
             area2[f] > 0.0
+                && hides(f)
                 && window.is_none_or(|(a, b)| hi[f].cmpge(a).all() && lo[f].cmple(b).all())
         };
         let kept: Vec<usize> = (0..lo.len()).filter(|&f| keep(f)).collect();
@@ -295,9 +308,11 @@ impl Bins {
         }
     }
 
-    /// The facets binned in the cells the box `[lo, hi]` reaches, each once, in order.
-    fn candidates(&self, lo: DVec2, hi: DVec2, out: &mut Vec<u32>) {
+    /// The facets binned in the cells the box `[lo, hi]` reaches, each once (in the cells'
+    /// order: the same every time), `seen` marking them.
+    fn candidates(&self, lo: DVec2, hi: DVec2, out: &mut Vec<u32>, seen: &mut Seen) {
         out.clear();
+        seen.next();
         if self.nx == 0 {
             return;
         }
@@ -314,13 +329,10 @@ impl Bins {
         for j in j0..=j1 {
             for i in i0..=i1 {
                 let k = j * self.nx + i;
-                out.extend_from_slice(
-                    &self.items[self.start[k] as usize..self.start[k + 1] as usize],
-                );
+                let items = &self.items[self.start[k] as usize..self.start[k + 1] as usize];
+                out.extend(items.iter().filter(|&&f| seen.first(f)));
             }
         }
-        out.sort_unstable();
-        out.dedup();
     }
 }
 
@@ -328,7 +340,37 @@ impl Bins {
 #[derive(Default)]
 struct Scratch {
     candidates: Vec<u32>,
+    seen: Seen,
     tmp: Vec<DVec2>,
+}
+
+/// Which facets a search has met: a stamp per facet, the search's own.
+#[derive(Default)]
+struct Seen {
+    stamp: Vec<u32>,
+    now: u32,
+}
+
+impl Seen {
+    fn next(&mut self) {
+        self.now = self.now.wrapping_add(1);
+        if self.now == 0 {
+            self.stamp.fill(0);
+            self.now = 1;
+        }
+    }
+
+    /// Whether facet `f` is met for the first time in this search (and marks it).
+    #[inline]
+    fn first(&mut self, f: u32) -> bool {
+        let f = f as usize;
+        if f >= self.stamp.len() {
+            self.stamp.resize(f + 1, 0);
+        }
+        let new = self.stamp[f] != self.now;
+        self.stamp[f] = self.now;
+        new
+    }
 }
 
 #[inline]
@@ -454,6 +496,122 @@ const RULE3: [([f64; 3], f64); 3] = [
     ([1.0 / 6.0, 1.0 / 6.0, 2.0 / 3.0], 1.0 / 3.0),
 ];
 
+/// The light of facet `f` (direct, unshadowed: [`Tracer::facet_light`]) at pixel position `x`.
+#[inline]
+fn light(tracer: &Tracer, f: u32, x: DVec2) -> f64 {
+    tracer
+        .facet_light(x.x, x.y, f)
+        .map_or(0.0, |(direct, _)| direct.max(0.0))
+}
+
+/// The light of facet `f` integrated over the convex polygon `cut` [px] by the 7-point rule
+/// `r7` on the triangles of a fan, and `|I7 - I3|`, the 3-point rule's departure from it.
+fn integrate(tracer: &Tracer, f: u32, cut: &[DVec2], r7: &[([f64; 3], f64); 7]) -> (f64, f64) {
+    let (mut i7, mut i3) = (0.0, 0.0);
+    for k in 1..cut.len() - 1 {
+        let (a, b, c) = (cut[0], cut[k], cut[k + 1]);
+        let at = 0.5 * cross(b - a, c - a);
+        if at <= 0.0 {
+            continue;
+        }
+        let node = |l: [f64; 3]| a * l[0] + b * l[1] + c * l[2];
+        i7 += at
+            * r7.iter()
+                .map(|&(l, w)| w * light(tracer, f, node(l)))
+                .sum::<f64>();
+        i3 += at
+            * RULE3
+                .iter()
+                .map(|&(l, w)| w * light(tracer, f, node(l)))
+                .sum::<f64>();
+    }
+    (i7, (i7 - i3).abs())
+}
+
+/// A facet's light as the quadratic Lagrange element over its image (the projected corners
+/// and the midpoints of the projected edges), as [`super::facet_light`] reads it for the
+/// sampled frame: a flat facet's light varies smoothly over its image. Kept where it
+/// reproduces the light at two more points (the centroid and `(1/2, 1/4, 1/4)`) within
+/// [`ELEMENT_TOLERANCE`] of its brightest node; that tolerance, per px^2, is the error
+/// estimate of every cut read from it (the misses at the check points themselves fell short
+/// of the pixels' errors: on Bennu at 41 deg their 99th percentile was 2.5e-7 where the
+/// pixels' measured 2.8e-7).
+struct Element {
+    a: DVec2,
+    e1: DVec2,
+    e2: DVec2,
+    inv: f64,
+    /// Corners 0, 1, 2, then the midpoints of edges 12, 20, 01.
+    nodes: [f64; 6],
+}
+
+/// The largest miss of the element at its check points, as a fraction of its brightest node.
+const ELEMENT_TOLERANCE: f64 = 1e-6;
+
+impl Element {
+    /// The element of facet `f` whose image is `tri` [px], with its error bound [(P/L) per
+    /// px^2]; `None` where it does not hold.
+    fn new(tracer: &Tracer, f: u32, tri: &[DVec2; 3]) -> Option<(Element, f64)> {
+        let [a, b, c] = *tri;
+        let s = cross(b - a, c - a);
+        if s <= 0.0 {
+            return None;
+        }
+        let at = |x: DVec2| light(tracer, f, x);
+        let nodes = [
+            at(a),
+            at(b),
+            at(c),
+            at(0.5 * (b + c)),
+            at(0.5 * (c + a)),
+            at(0.5 * (a + b)),
+        ];
+        let el = Element {
+            a,
+            e1: b - a,
+            e2: c - a,
+            inv: 1.0 / s,
+            nodes,
+        };
+        let top = nodes.iter().copied().fold(0.0, f64::max);
+        let mut miss: f64 = 0.0;
+        for l in [[1.0 / 3.0; 3], [0.5, 0.25, 0.25]] {
+            let x = a * l[0] + b * l[1] + c * l[2];
+            miss = miss.max((el.at(x) - at(x)).abs());
+        }
+        (miss <= ELEMENT_TOLERANCE * top).then_some((el, ELEMENT_TOLERANCE * top))
+    }
+
+    /// The element's value at `x` [px].
+    #[inline]
+    fn at(&self, x: DVec2) -> f64 {
+        let d = x - self.a;
+        let l1 = cross(d, self.e2) * self.inv;
+        let l2 = cross(self.e1, d) * self.inv;
+        let l0 = 1.0 - l1 - l2;
+        let n = &self.nodes;
+        n[0] * l0 * (2.0 * l0 - 1.0)
+            + n[1] * l1 * (2.0 * l1 - 1.0)
+            + n[2] * l2 * (2.0 * l2 - 1.0)
+            + 4.0 * (n[3] * l1 * l2 + n[4] * l2 * l0 + n[5] * l0 * l1)
+    }
+
+    /// The element integrated over the convex polygon `cut` [px]: on each triangle of a fan,
+    /// its area times the mean of the element at the edges' midpoints (exact for a quadratic).
+    fn integral(&self, cut: &[DVec2]) -> f64 {
+        let mut sum = 0.0;
+        for k in 1..cut.len() - 1 {
+            let (a, b, c) = (cut[0], cut[k], cut[k + 1]);
+            let at = 0.5 * cross(b - a, c - a);
+            if at > 0.0 {
+                sum += at / 3.0
+                    * (self.at(0.5 * (a + b)) + self.at(0.5 * (b + c)) + self.at(0.5 * (c + a)));
+            }
+        }
+        sum
+    }
+}
+
 /// What one facet adds to the image: `(pixel, (P/L) [sr m^2], estimated error)` per cut, its
 /// quadrature nodes, and whether its pieces ran past [`MAX_PIECES`].
 struct FacetShare {
@@ -462,8 +620,169 @@ struct FacetShare {
     unconverged: bool,
 }
 
+/// How a cut's light is integrated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum LightRule {
+    /// The 7-point rule on the light itself, the 3-point rule beside it for the estimate.
+    Exact,
+    /// The facet's quadratic element ([`Element`]) where it holds, else [`LightRule::Exact`].
+    Element,
+}
+
+/// A clipped image: `(P/L)` and each pixel's estimated error [sr m^2], the range at each
+/// pixel's centre (when asked), the light's evaluations, the cuts and the facets whose pieces
+/// ran past [`MAX_PIECES`].
+struct Clipped {
+    pl: Vec<f64>,
+    error_pl: Vec<f64>,
+    depth: Option<Vec<f64>>,
+    nodes: u64,
+    cuts: u64,
+    unconverged: u64,
+}
+
+/// Per lit pixel (above a thousandth of the 99th percentile), the median, 99th percentile
+/// and largest relative error estimate, and the total's.
+fn estimate(pl: &[f64], error_pl: &[f64]) -> [f64; 4] {
+    let total: f64 = pl.iter().sum();
+    let floor = {
+        let mut lit: Vec<f64> = pl.iter().copied().filter(|&x| x > 0.0).collect();
+        if lit.is_empty() {
+            f64::MIN_POSITIVE
+        } else {
+            1e-3 * crate::stats::selected_quantiles(&mut lit, [0.99])[0]
+        }
+    };
+    let mut rel: Vec<f64> = pl
+        .iter()
+        .zip(error_pl)
+        .filter(|(v, _)| **v > floor)
+        .map(|(v, e)| e / v)
+        .collect();
+    let [median, p99, max] = if rel.is_empty() {
+        [0.0; 3]
+    } else {
+        crate::stats::selected_quantiles(&mut rel, [0.5, 0.99, 1.0])
+    };
+    let total_rel = if total > 0.0 {
+        error_pl.iter().sum::<f64>() / total
+    } else {
+        0.0
+    };
+    [median, p99, max, total_rel]
+}
+
+fn phase_deg(pose: &Pose) -> f64 {
+    (pose.sun_position_m.normalize())
+        .dot(pose.camera_position_m.normalize())
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
+}
+
+/// The reference through the camera's own intrinsics.
 fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderError> {
     let t0 = Instant::now();
+    let c = clipped(scene, pose, LightRule::Exact, true)?;
+    let intr = &scene.camera.intrinsics;
+    let (w, h) = (intr.width_px as usize, intr.height_px as usize);
+    let total: f64 = c.pl.iter().sum();
+    let [median, p99, max, est_total] = estimate(&c.pl, &c.error_pl);
+    let seconds = t0.elapsed().as_secs_f64();
+    let report = ReferenceReport {
+        method: "exact",
+        settings: None,
+        rays: c.nodes + (w * h) as u64,
+        cells: c.cuts,
+        unconverged_cells: c.unconverged,
+        unconverged_px: 0,
+        est_error_total: est_total,
+        est_error_median: median,
+        est_error_p99: p99,
+        est_error_max: max,
+        seconds,
+    };
+    let stats = FrameStats {
+        phase_deg: phase_deg(pose),
+        total_pl_points: total,
+        total_pl_image: total,
+        total_pl_gridded: total,
+        timings_ms: StageTimings {
+            total: seconds * 1e3,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    Ok(ReferenceFrame {
+        frame: Frame {
+            width: w,
+            height: h,
+            pl: c.pl,
+            band_pl: Vec::new(),
+            depth_m: c.depth,
+            stats,
+        },
+        error_pl: c.error_pl,
+        report,
+    })
+}
+
+/// A mesh frame clipped exactly (`render.raycast_clip`, [`crate::render::Renderer`]): as the
+/// reference, but each facet's light read from its quadratic element where that holds, and
+/// the frame's own error estimate (the elements' and the rule's) in its stats. One band's
+/// image: the caller gives each band with a map of its own its frame.
+pub fn render_frame(
+    scene: &Scene,
+    pose: &Pose,
+    settings: &crate::render::Settings,
+) -> Result<Frame, RenderError> {
+    let t0 = Instant::now();
+    applies(scene, pose).map_err(|e| RenderError::BadSettings {
+        field: "raycast_clip",
+        value: "true".into(),
+        allowed: e.0,
+    })?;
+    let c = clipped(scene, pose, LightRule::Element, settings.depth)?;
+    let intr = &scene.camera.intrinsics;
+    let (w, h) = (intr.width_px as usize, intr.height_px as usize);
+    let total: f64 = c.pl.iter().sum();
+    let [median, p99, _, est_total] = estimate(&c.pl, &c.error_pl);
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    let stats = FrameStats {
+        phase_deg: phase_deg(pose),
+        surface_samples: c.nodes as usize,
+        total_pl_points: total,
+        total_pl_image: total,
+        total_pl_gridded: total,
+        timings_ms: StageTimings {
+            integration: ms,
+            total: ms,
+            ..Default::default()
+        },
+        estimated_error: Some(crate::raycast::estimate::FrameEstimate {
+            median,
+            p99,
+            total: est_total,
+        }),
+        ..Default::default()
+    };
+    Ok(Frame {
+        width: w,
+        height: h,
+        pl: c.pl,
+        band_pl: Vec::new(),
+        depth_m: c.depth,
+        stats,
+    })
+}
+
+/// The lit and seen part of every facet, cut by the pixels and integrated by `rule`.
+fn clipped(
+    scene: &Scene,
+    pose: &Pose,
+    rule: LightRule,
+    with_depth: bool,
+) -> Result<Clipped, RenderError> {
     let Shape::Mesh(m) = &scene.body.shape else {
         return Err(RenderError::BadSettings {
             field: "reference",
@@ -489,8 +808,28 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
         .fold(0.0, f64::max);
     let tol_cam = tol / (z_far * z_far);
 
+    // What may hide a facet: on a closed surface only the facets facing the viewer (a line
+    // from a point of the surface to the Sun, or to the camera, that the body blocks leaves
+    // it through a facet facing the Sun, or enters it through one facing the camera, farther
+    // along that line); on an open one, every facet.
+    let closed = m.report().open_edges == 0;
+    let facing = |f: usize, eye: DVec3, at_infinity: bool| {
+        let n = m.normals()[f];
+        let corner = m.vertices_m()[m.facets()[f][0] as usize];
+        !closed
+            || if at_infinity {
+                n.dot(eye) > 0.0
+            } else {
+                n.dot(eye - corner) > 0.0
+            }
+    };
     // The view from the Sun: depth along s (larger is sunward).
-    let sun = View::new(m, |v| (DVec2::new(v.dot(e1), v.dot(e2)), v.dot(s)), None);
+    let sun = View::new(
+        m,
+        |v| (DVec2::new(v.dot(e1), v.dot(e2)), v.dot(s)),
+        None,
+        |f| facing(f, s, true),
+    );
     // The camera's view [px]: depth is `1 / z` (larger is nearer), which, unlike `z`, is
     // affine in the image plane.
     let to_px = |v: DVec3| {
@@ -506,6 +845,7 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
             (p, 1.0 / c.z)
         },
         Some(image),
+        |f| facing(f, camera, false),
     );
     let r7 = rule7();
 
@@ -528,9 +868,11 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
             {
                 return share;
             }
-            // 1. The lit part, in the Sun's view.
+            // 1. The lit part, in the Sun's view (a frame, not the reference, takes the word of
+            // the Sun's grid, [`super::sun_grid`], for the facets lit all over).
             let mut pieces: Vec<Poly> = vec![sun.tris[f].to_vec()];
-            if !sun.hide(f, &mut pieces, tol, scratch) {
+            let lit_all_over = rule == LightRule::Element && tracer.lit_all_over_or_unlit(f as u32);
+            if !lit_all_over && !sun.hide(f, &mut pieces, tol, scratch) {
                 share.unconverged = true;
             }
             // 2. Onto the facet's plane, into the image, and what nearer facets hide.
@@ -553,7 +895,16 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
             if !cam.hide(f, &mut seen, tol_cam, scratch) {
                 share.unconverged = true;
             }
-            // 3. Cut by the pixels, integrated.
+            // 3. Cut by the pixels, integrated: by the rule on the light itself, or on the
+            // facet's quadratic element where it holds.
+            let element = match rule {
+                LightRule::Exact => None,
+                LightRule::Element if seen.is_empty() => None,
+                LightRule::Element => {
+                    share.nodes += 8;
+                    Element::new(&tracer, f as u32, &cam.tris[f])
+                }
+            };
             let mut strip = Vec::new();
             let mut cell = Vec::new();
             for q in &seen {
@@ -577,28 +928,17 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
                         if area(&cell) <= 0.0 {
                             continue;
                         }
-                        let light = |x: DVec2| {
-                            tracer
-                                .facet_light(x.x, x.y, f as u32)
-                                .map_or(0.0, |(direct, _)| direct.max(0.0))
-                        };
-                        let (mut i7, mut i3) = (0.0, 0.0);
-                        for k in 1..cell.len() - 1 {
-                            let (a, b, c) = (cell[0], cell[k], cell[k + 1]);
-                            let at = 0.5 * cross(b - a, c - a);
-                            if at <= 0.0 {
-                                continue;
+                        let (v, e) = match &element {
+                            Some((el, d)) => {
+                                let v = el.integral(&cell);
+                                (v, d * area(&cell))
                             }
-                            let node = |l: [f64; 3]| a * l[0] + b * l[1] + c * l[2];
-                            i7 += at * r7.iter().map(|&(l, wt)| wt * light(node(l))).sum::<f64>();
-                            i3 += at
-                                * RULE3
-                                    .iter()
-                                    .map(|&(l, wt)| wt * light(node(l)))
-                                    .sum::<f64>();
-                            share.nodes += 10;
-                        }
-                        share.cuts.push(((j * w + i) as u32, i7, (i7 - i3).abs()));
+                            None => {
+                                share.nodes += 10 * (cell.len() as u64 - 2);
+                                integrate(&tracer, f as u32, &cell, &r7)
+                            }
+                        };
+                        share.cuts.push(((j * w + i) as u32, v, e));
                     }
                 }
             }
@@ -608,95 +948,41 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
 
     let mut pl = vec![0.0; w * h];
     let mut error_pl = vec![0.0; w * h];
-    let (mut nodes, mut cells, mut unconverged) = (0u64, 0u64, 0u64);
+    let (mut nodes, mut cuts, mut unconverged) = (0u64, 0u64, 0u64);
     for share in &shares {
         for &(p, v, e) in &share.cuts {
             pl[p as usize] += v;
             error_pl[p as usize] += e;
         }
         nodes += share.nodes;
-        cells += share.cuts.len() as u64;
+        cuts += share.cuts.len() as u64;
         unconverged += u64::from(share.unconverged);
     }
     let total: f64 = pl.iter().sum();
     if !total.is_finite() {
         return Err(RenderError::NonFinite {
-            stage: "exact reference",
+            stage: "clipped mesh frame",
             value: total,
         });
     }
     // The range at each pixel's centre (the depth image), by a ray.
-    let depth: Vec<f64> = (0..w * h)
-        .into_par_iter()
-        .map(|p| {
-            tracer
-                .cast((p % w) as f64 + 0.5, (p / w) as f64 + 0.5)
-                .range_m
-        })
-        .collect();
-    let floor = {
-        let mut lit: Vec<f64> = pl.iter().copied().filter(|&x| x > 0.0).collect();
-        if lit.is_empty() {
-            f64::MIN_POSITIVE
-        } else {
-            1e-3 * crate::stats::quantiles(&mut lit, [0.99])[0]
-        }
-    };
-    let mut rel: Vec<f64> = pl
-        .iter()
-        .zip(&error_pl)
-        .filter(|(v, _)| **v > floor)
-        .map(|(v, e)| e / v)
-        .collect();
-    let [median, p99, max] = if rel.is_empty() {
-        [0.0; 3]
-    } else {
-        crate::stats::quantiles(&mut rel, [0.5, 0.99, 1.0])
-    };
-    let seconds = t0.elapsed().as_secs_f64();
-    let report = ReferenceReport {
-        method: "exact",
-        settings: None,
-        rays: nodes + (w * h) as u64,
-        cells,
-        unconverged_cells: unconverged,
-        unconverged_px: 0,
-        est_error_total: if total > 0.0 {
-            error_pl.iter().sum::<f64>() / total
-        } else {
-            0.0
-        },
-        est_error_median: median,
-        est_error_p99: p99,
-        est_error_max: max,
-        seconds,
-    };
-    let stats = FrameStats {
-        phase_deg: (pose.sun_position_m.normalize())
-            .dot(pose.camera_position_m.normalize())
-            .clamp(-1.0, 1.0)
-            .acos()
-            .to_degrees(),
-        total_pl_points: total,
-        total_pl_image: total,
-        total_pl_gridded: total,
-        timings_ms: StageTimings {
-            total: seconds * 1e3,
-            ..Default::default()
-        },
-        ..Default::default()
-    };
-    Ok(ReferenceFrame {
-        frame: Frame {
-            width: w,
-            height: h,
-            pl,
-            band_pl: Vec::new(),
-            depth_m: Some(depth),
-            stats,
-        },
+    let depth = with_depth.then(|| {
+        (0..w * h)
+            .into_par_iter()
+            .map(|p| {
+                tracer
+                    .cast((p % w) as f64 + 0.5, (p / w) as f64 + 0.5)
+                    .range_m
+            })
+            .collect()
+    });
+    Ok(Clipped {
+        pl,
         error_pl,
-        report,
+        depth,
+        nodes,
+        cuts,
+        unconverged,
     })
 }
 
@@ -759,7 +1045,12 @@ mod tests {
         let s = DVec3::new(-1.1e11, 1.26e11, 0.0).normalize();
         let e1 = s.any_orthonormal_vector();
         let e2 = s.cross(e1);
-        let sun = View::new(&m, |v| (DVec2::new(v.dot(e1), v.dot(e2)), v.dot(s)), None);
+        let sun = View::new(
+            &m,
+            |v| (DVec2::new(v.dot(e1), v.dot(e2)), v.dot(s)),
+            None,
+            |_| true,
+        );
         let mut scratch = Scratch::default();
         let (mut worst, mut exact, mut rays, mut partly) = (0.0f64, 0.0, 0.0, 0);
         for f in 0..m.facets().len() {

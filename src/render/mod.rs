@@ -234,6 +234,16 @@ impl Renderer {
                     (crate::irradiance::scattered(&ff, &direct, rho, orders), rho)
                 });
                 let scattered = scattered.as_ref().map(|(r, rho)| (&r[..], *rho));
+                if settings.raycast_clip
+                    && scattered.is_none()
+                    && crate::raycast::exact::applies(scene, pose).is_ok()
+                {
+                    let mut frame = crate::raycast::exact::render_frame(scene, pose, settings)?;
+                    with_band_distortions(scene, &mut frame, |s| {
+                        Ok(crate::raycast::exact::render_frame(s, pose, settings)?.pl)
+                    })?;
+                    return Ok(frame);
+                }
                 let mut frame = crate::raycast::sampled::render(scene, pose, settings, scattered)?;
                 with_band_distortions(scene, &mut frame, |s| {
                     Ok(crate::raycast::sampled::render(s, pose, settings, scattered)?.pl)

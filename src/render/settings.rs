@@ -143,6 +143,11 @@ pub struct Settings {
     /// error keeps the frame from it cast again with twice the rays, up to 64 per side;
     /// [`crate::raycast::estimate`]); `None`: `raycast_edge_samples` everywhere.
     pub raycast_budget: Option<crate::raycast::estimate::RaycastBudget>,
+    /// A mesh body alone seen through a pinhole, without scattered light: each facet's lit and
+    /// seen part clipped exactly as polygons, its light read from a quadratic element
+    /// ([`crate::raycast::exact::render_frame`]): no edge rays, no sampling error (elsewhere
+    /// the rays of the settings above).
+    pub raycast_clip: bool,
     /// Mesh bodies: orders of light scattered between facets that enter the image (0: direct
     /// light only; [`crate::irradiance`]).
     pub scattering_orders: u32,
@@ -179,6 +184,7 @@ impl Default for Settings {
             raycast_edge_samples: 4,
             raycast_quadratic_light: true,
             raycast_budget: None,
+            raycast_clip: false,
             scattering_orders: 0,
         }
     }

@@ -51,8 +51,11 @@
 //!     optistim.dataset on Ray, the same files)
 //!
 //!   (a mesh body or several bodies: Renderer::render hands the frame to raycast::sampled,
-//!    with a mesh's scattered light from irradiance; the same Frame comes out)
-//!   raycast::reference::render(scene, pose) ─► the converged Frame (+ its error per pixel)
+//!    with a mesh's scattered light from irradiance, or, a lone mesh through a pinhole with
+//!    raycast_clip, to raycast::exact (facets clipped as polygons); the same Frame comes out)
+//!   raycast::reference::render_by(scene, pose, method) ─► the converged Frame (+ its error
+//!    per pixel): raycast::exact's clipping for a lone mesh through a pinhole, else the
+//!    adaptive cubature of ray casts
 //!   fidelity::metrics::frame_error(frame, reference) ─► total, median / p95 / p99, SSIM
 //!   fidelity::budget::Planner::plan(scene, pose) ─► Settings + predicted error, per frame
 //!     (pipeline::FrameMaker, app::render, app::bench with fidelity = "budget"; reported in

@@ -1,7 +1,9 @@
 //! Per-pixel ray casting, the sibling of the quadrangle pipeline ([`crate::render`]): what a
 //! line of sight through the camera meets, and the light it brings back. It serves the
 //! converged reference of any scene ([`reference`]), which the sweep, the stability suite and
-//! the tests measure the quadrangle pipeline against.
+//! the tests measure the quadrangle pipeline against. A lone mesh body seen through a pinhole
+//! needs no rays to decide what is lit and seen: [`exact`] clips its facets as polygons, for
+//! its reference and, with `render.raycast_clip`, for its frames.
 //!
 //! It shares no integration, bounding or gridding code with the pipeline: only the body's
 //! shape (ray intersections), its maps (albedo, DEM normals) and the BRDFs. Shadows cast by a

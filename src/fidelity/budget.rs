@@ -899,45 +899,33 @@ impl Planner {
     /// frame estimates its own error. Its prediction waits for the frame ([`Plan::observe`]).
     fn ray_cast_plan(&self, features: Features, clip: bool) -> Plan {
         let b = self.budget;
-        if clip {
-            let settings = Settings {
+        let settings = if clip {
+            Settings {
                 raycast_clip: true,
                 raycast_budget: None,
                 ..self.base.clone()
-            };
-            return Plan {
-                points_per_pixel: 0.0,
-                raycast_edge_samples: 0,
-                raycast_clip: true,
-                boundary_nodes: 0,
-                self_shadowing: settings.self_shadowing,
-                map_filter: settings.map_filter,
-                predicted: Predicted {
-                    median: f64::NAN,
-                    p99: f64::NAN,
-                    total: f64::NAN,
-                },
-                meets_budget: false,
-                budget: b,
-                features,
-                settings,
-            };
-        }
-        let settings = Settings {
-            raycast_edge_samples: self
-                .base
-                .raycast_edge_samples
-                .max(RAYCAST_FIRST_EDGE_SAMPLES),
-            raycast_budget: Some(crate::raycast::estimate::RaycastBudget {
-                p99: b.p99,
-                total: b.total,
-            }),
-            ..self.base.clone()
+            }
+        } else {
+            Settings {
+                raycast_edge_samples: self
+                    .base
+                    .raycast_edge_samples
+                    .max(RAYCAST_FIRST_EDGE_SAMPLES),
+                raycast_budget: Some(crate::raycast::estimate::RaycastBudget {
+                    p99: b.p99,
+                    total: b.total,
+                }),
+                ..self.base.clone()
+            }
         };
         Plan {
             points_per_pixel: 0.0,
-            raycast_edge_samples: settings.raycast_edge_samples,
-            raycast_clip: false,
+            raycast_edge_samples: if clip {
+                0
+            } else {
+                settings.raycast_edge_samples
+            },
+            raycast_clip: clip,
             boundary_nodes: 0,
             self_shadowing: settings.self_shadowing,
             map_filter: settings.map_filter,

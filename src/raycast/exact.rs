@@ -654,17 +654,7 @@ fn estimate(pl: &[f64], error_pl: &[f64]) -> [f64; 4] {
             1e-3 * crate::stats::selected_quantiles(&mut lit, [0.99])[0]
         }
     };
-    let mut rel: Vec<f64> = pl
-        .iter()
-        .zip(error_pl)
-        .filter(|(v, _)| **v > floor)
-        .map(|(v, e)| e / v)
-        .collect();
-    let [median, p99, max] = if rel.is_empty() {
-        [0.0; 3]
-    } else {
-        crate::stats::selected_quantiles(&mut rel, [0.5, 0.99, 1.0])
-    };
+    let [median, p99, max] = super::reference::relative_quantiles(pl, error_pl, floor);
     let total_rel = if total > 0.0 {
         error_pl.iter().sum::<f64>() / total
     } else {
@@ -673,21 +663,12 @@ fn estimate(pl: &[f64], error_pl: &[f64]) -> [f64; 4] {
     [median, p99, max, total_rel]
 }
 
-fn phase_deg(pose: &Pose) -> f64 {
-    (pose.sun_position_m.normalize())
-        .dot(pose.camera_position_m.normalize())
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees()
-}
-
 /// The reference through the camera's own intrinsics.
 fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderError> {
     let t0 = Instant::now();
     let c = clipped(scene, pose, LightRule::Exact, true)?;
     let intr = &scene.camera.intrinsics;
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
-    let total: f64 = c.pl.iter().sum();
     let [median, p99, max, est_total] = estimate(&c.pl, &c.error_pl);
     let seconds = t0.elapsed().as_secs_f64();
     let report = ReferenceReport {
@@ -703,26 +684,8 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
         est_error_max: max,
         seconds,
     };
-    let stats = FrameStats {
-        phase_deg: phase_deg(pose),
-        total_pl_points: total,
-        total_pl_image: total,
-        total_pl_gridded: total,
-        timings_ms: StageTimings {
-            total: seconds * 1e3,
-            ..Default::default()
-        },
-        ..Default::default()
-    };
     Ok(ReferenceFrame {
-        frame: Frame {
-            width: w,
-            height: h,
-            pl: c.pl,
-            band_pl: Vec::new(),
-            depth_m: c.depth,
-            stats,
-        },
+        frame: super::reference::reference_frame(pose, (w, h), c.pl, c.depth, seconds),
         error_pl: c.error_pl,
         report,
     })
@@ -750,7 +713,7 @@ pub fn render_frame(
     let [median, p99, _, est_total] = estimate(&c.pl, &c.error_pl);
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
-        phase_deg: phase_deg(pose),
+        phase_deg: super::reference::phase_deg(pose),
         surface_samples: c.nodes as usize,
         total_pl_points: total,
         total_pl_image: total,

@@ -395,17 +395,7 @@ fn render_camera(
             value: total,
         });
     }
-    let mut rel: Vec<f64> = pl
-        .iter()
-        .zip(&error_pl)
-        .filter(|(v, _)| **v > floor)
-        .map(|(v, e)| e / v)
-        .collect();
-    let [median, p99, max] = if rel.is_empty() {
-        [0.0; 3]
-    } else {
-        crate::stats::quantiles(&mut rel, [0.5, 0.99, 1.0])
-    };
+    let [median, p99, max] = relative_quantiles(&pl, &error_pl, floor);
     let seconds = t0.elapsed().as_secs_f64();
     let report = ReferenceReport {
         method: "cubature",
@@ -424,12 +414,25 @@ fn render_camera(
         est_error_max: max,
         seconds,
     };
+    Ok(ReferenceFrame {
+        frame: reference_frame(pose, (w, h), pl, Some(depth), seconds),
+        error_pl,
+        report,
+    })
+}
+
+/// A reference's frame: its image, depth and the stats a reference has (the phase, the
+/// total, the time it took).
+pub(super) fn reference_frame(
+    pose: &Pose,
+    (width, height): (usize, usize),
+    pl: Vec<f64>,
+    depth_m: Option<Vec<f64>>,
+    seconds: f64,
+) -> Frame {
+    let total: f64 = pl.iter().sum();
     let stats = FrameStats {
-        phase_deg: (pose.sun_position_m.normalize())
-            .dot(pose.camera_position_m.normalize())
-            .clamp(-1.0, 1.0)
-            .acos()
-            .to_degrees(),
+        phase_deg: phase_deg(pose),
         total_pl_points: total,
         total_pl_image: total,
         total_pl_gridded: total,
@@ -439,16 +442,37 @@ fn render_camera(
         },
         ..Default::default()
     };
-    Ok(ReferenceFrame {
-        frame: Frame {
-            width: w,
-            height: h,
-            pl,
-            band_pl: Vec::new(),
-            depth_m: Some(depth),
-            stats,
-        },
-        error_pl,
-        report,
-    })
+    Frame {
+        width,
+        height,
+        pl,
+        band_pl: Vec::new(),
+        depth_m,
+        stats,
+    }
+}
+
+/// The median, 99th percentile and largest of the pixels' estimated errors `error_pl` over
+/// their values `pl`, over the pixels brighter than `floor` (zeros when none is).
+pub(super) fn relative_quantiles(pl: &[f64], error_pl: &[f64], floor: f64) -> [f64; 3] {
+    let mut rel: Vec<f64> = pl
+        .iter()
+        .zip(error_pl)
+        .filter(|(v, _)| **v > floor)
+        .map(|(v, e)| e / v)
+        .collect();
+    if rel.is_empty() {
+        [0.0; 3]
+    } else {
+        crate::stats::selected_quantiles(&mut rel, [0.5, 0.99, 1.0])
+    }
+}
+
+/// The phase angle of `pose` at the body's centre [deg].
+pub(super) fn phase_deg(pose: &Pose) -> f64 {
+    (pose.sun_position_m.normalize())
+        .dot(pose.camera_position_m.normalize())
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
 }

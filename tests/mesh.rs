@@ -1066,3 +1066,36 @@ fn the_exact_mesh_reference_of_a_convex_mesh_holds_its_facets_power() {
     eprintln!("image {image}, surface {surface}, {:?}", r.report);
     assert!((image / surface - 1.0).abs() < 1e-9, "{image} {surface}");
 }
+
+/// Where clipping does not apply (here a distorted camera: the projection is no longer
+/// projective), a frame asked to clip is cast with rays instead, the planner does not clip,
+/// and the exact reference, asked for, says why it cannot be made.
+#[test]
+fn a_frame_that_cannot_be_clipped_is_cast_and_says_so() {
+    use optistim::fidelity::budget::{Budget, ErrorModel, Planner};
+    use optistim::raycast::{exact, reference};
+    let cfg = bennu_small("[camera.distortion]\nk1 = 1e-12");
+    let mut s = cfg.settings.clone();
+    s.raycast_clip = true;
+    let clip_asked = render(&cfg, &s);
+    assert_eq!(clip_asked, render(&cfg, &cfg.settings));
+    assert!(clip_asked.iter().sum::<f64>() > 0.0);
+    let planner = Planner::new(
+        &cfg.scene,
+        &cfg.settings,
+        Budget::default(),
+        ErrorModel::shipped().unwrap(),
+    );
+    let plan = planner.plan(&cfg.scene, &cfg.pose);
+    assert!(
+        !plan.raycast_clip && plan.raycast_edge_samples >= 8,
+        "{plan:?}"
+    );
+    let err = exact::render(&cfg.scene, &cfg.pose)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("distortion"), "{err}");
+    let method = reference::ReferenceMethod::Auto.resolve(&cfg.scene, &cfg.pose);
+    assert_eq!(method, reference::ReferenceMethod::Cubature);
+}

@@ -504,51 +504,34 @@ fn light(tracer: &Tracer, f: u32, x: DVec2) -> f64 {
         .map_or(0.0, |(direct, _)| direct.max(0.0))
 }
 
-/// The light of facet `f` integrated over the convex polygon `cut` [px] by the 7-point rule
-/// `r7` on the triangles of a fan, and `|I7 - I3|`, the 3-point rule's departure from it.
-fn integrate(tracer: &Tracer, f: u32, cut: &[DVec2], r7: &[([f64; 3], f64); 7]) -> (f64, f64) {
-    let (mut i7, mut i3) = (0.0, 0.0);
-    for k in 1..cut.len() - 1 {
-        let (a, b, c) = (cut[0], cut[k], cut[k + 1]);
-        let at = 0.5 * cross(b - a, c - a);
-        if at <= 0.0 {
-            continue;
-        }
-        let node = |l: [f64; 3]| a * l[0] + b * l[1] + c * l[2];
-        i7 += at
-            * r7.iter()
-                .map(|&(l, w)| w * light(tracer, f, node(l)))
-                .sum::<f64>();
-        i3 += at
-            * RULE3
-                .iter()
-                .map(|&(l, w)| w * light(tracer, f, node(l)))
-                .sum::<f64>();
-    }
-    (i7, (i7 - i3).abs())
-}
+/// A triangle rule: barycentric nodes and weights (summing to 1).
+type Rule = [([f64; 3], f64)];
 
-/// [`integrate`] one order lower, for a frame's facets that no element serves (the
-/// opposition surge's cusp, the Sun grazing the facet's plane): the 3-point rule of degree 2
-/// on each triangle of a fan, and its departure from the centroid's value as the estimate
-/// (4 evaluations where [`integrate`] takes 10).
-fn integrate_lower(tracer: &Tracer, f: u32, cut: &[DVec2]) -> (f64, f64) {
-    let (mut i3, mut i1) = (0.0, 0.0);
+/// The centroid rule, of degree 1.
+const RULE1: [([f64; 3], f64); 1] = [([1.0 / 3.0; 3], 1.0)];
+
+/// The light of facet `f` integrated over the convex polygon `cut` [px] by the rule `kept` on
+/// the triangles of a fan, and the departure of the rule `lower` from it (the estimate): the
+/// reference takes the 7-point rule and the 3-point one (10 evaluations a triangle), a frame's
+/// facets that no element serves (the opposition surge's cusp, the Sun grazing the facet's
+/// plane) the 3-point rule and the centroid (4).
+fn integrate(tracer: &Tracer, f: u32, cut: &[DVec2], kept: &Rule, lower: &Rule) -> (f64, f64) {
+    let (mut i, mut i_lower) = (0.0, 0.0);
     for k in 1..cut.len() - 1 {
         let (a, b, c) = (cut[0], cut[k], cut[k + 1]);
         let at = 0.5 * cross(b - a, c - a);
         if at <= 0.0 {
             continue;
         }
-        let node = |l: [f64; 3]| a * l[0] + b * l[1] + c * l[2];
-        i3 += at
-            * RULE3
-                .iter()
-                .map(|&(l, w)| w * light(tracer, f, node(l)))
-                .sum::<f64>();
-        i1 += at * light(tracer, f, (a + b + c) / 3.0);
+        let by = |rule: &Rule| {
+            rule.iter()
+                .map(|&(l, w)| w * light(tracer, f, a * l[0] + b * l[1] + c * l[2]))
+                .sum::<f64>()
+        };
+        i += at * by(kept);
+        i_lower += at * by(lower);
     }
-    (i3, (i3 - i1).abs())
+    (i, (i - i_lower).abs())
 }
 
 /// A facet's light as the quadratic Lagrange element over its image (the projected corners
@@ -648,7 +631,8 @@ struct FacetShare {
 enum LightRule {
     /// The 7-point rule on the light itself, the 3-point rule beside it for the estimate.
     Exact,
-    /// The facet's quadratic element ([`Element`]) where it holds, else [`LightRule::Exact`].
+    /// The facet's quadratic element ([`Element`]) where it holds, else the 3-point rule on
+    /// the light, the centroid beside it for the estimate.
     Element,
 }
 
@@ -921,11 +905,11 @@ fn clipped(
                             }
                             None if rule == LightRule::Exact => {
                                 share.nodes += 10 * (cell.len() as u64 - 2);
-                                integrate(&tracer, f as u32, &cell, &r7)
+                                integrate(&tracer, f as u32, &cell, &r7, &RULE3)
                             }
                             None => {
                                 share.nodes += 4 * (cell.len() as u64 - 2);
-                                integrate_lower(&tracer, f as u32, &cell)
+                                integrate(&tracer, f as u32, &cell, &RULE3, &RULE1)
                             }
                         };
                         share.cuts.push(((j * w + i) as u32, v, e));

@@ -24,10 +24,21 @@
 //!    same triangles gives the error estimate, `|I7 - I3|` summed (an upper estimate: it is
 //!    the lower rule's error).
 //!
+//! On a closed mesh only the facets facing the viewer can hide others (a line from a point of
+//! the surface to the Sun, or to the camera, that the body blocks leaves it through a facet
+//! facing the Sun, or enters it through one facing the camera); on an open one, every facet.
+//!
 //! It applies to one mesh body alone (no DEM, no placed bodies) seen through an undistorted
 //! camera with every vertex in front of it; elsewhere [`render`] says why it does not, and
 //! the adaptive cubature of [`super::reference`] is the reference. As that one, it leaves out
 //! the light scattered between facets.
+//!
+//! Frames (`render.raycast_clip`, which the budget planner chooses where this applies:
+//! [`render_frame`]) are clipped the same way, with two economies: the facets the Sun's grid
+//! ([`super::sun_grid`]) knows to be lit all over are not clipped in the Sun's view, and each
+//! facet's light is read from its quadratic element (`Element`) where that holds, else from
+//! the 3-point rule. Their own error estimate (the elements' bound, the rule's departure from
+//! the centroid) is the frame's `estimated_error`.
 
 use super::Tracer;
 use super::reference::{ReferenceFrame, ReferenceReport};

@@ -1037,20 +1037,8 @@ fn the_exact_mesh_reference_of_a_convex_mesh_holds_its_facets_power() {
         k * scene.body.brdf.eval(&g) * g.mu0 * g.mu * cos_eps
             / (to_sun.length_squared() * to_cam.length_squared())
     };
-    let (a, b) = ((6.0 - 15f64.sqrt()) / 21.0, (6.0 + 15f64.sqrt()) / 21.0);
-    let (wa, wb) = (
-        (155.0 - 15f64.sqrt()) / 1200.0,
-        (155.0 + 15f64.sqrt()) / 1200.0,
-    );
-    let rule = [
-        ([1.0 / 3.0; 3], 9.0 / 40.0),
-        ([a, a, 1.0 - 2.0 * a], wa),
-        ([a, 1.0 - 2.0 * a, a], wa),
-        ([1.0 - 2.0 * a, a, a], wa),
-        ([b, b, 1.0 - 2.0 * b], wb),
-        ([b, 1.0 - 2.0 * b, b], wb),
-        ([1.0 - 2.0 * b, b, b], wb),
-    ];
+    // The module's 7-point rule (tested on its own), here over each facet in 3-D.
+    let rule = exact::rule7();
     let mut surface = 0.0;
     for (fi, facet) in m.facets().iter().enumerate() {
         let [p0, p1, p2] = facet.map(|q| m.vertices_m()[q as usize]);

@@ -484,8 +484,9 @@ fn bounds(p: &[DVec2]) -> (DVec2, DVec2) {
     )
 }
 
-/// The 7-point rule of degree 5 on a triangle (Radon): barycentric nodes and weights.
-fn rule7() -> [([f64; 3], f64); 7] {
+/// The 7-point rule of degree 5 on a triangle (Radon): barycentric nodes and weights (tested
+/// against a fine sum below).
+pub fn rule7() -> [([f64; 3], f64); 7] {
     let r = 15f64.sqrt();
     let (a, b) = ((6.0 - r) / 21.0, (6.0 + r) / 21.0);
     let (wa, wb) = ((155.0 - r) / 1200.0, (155.0 + r) / 1200.0);
@@ -710,7 +711,8 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
 
 /// A mesh frame clipped exactly (`render.raycast_clip`, [`crate::render::Renderer`]): as the
 /// reference, but each facet's light read from its quadratic element where that holds, and
-/// the frame's own error estimate (the elements' and the rule's) in its stats. One band's
+/// the frame's own error estimate (the elements' and the rule's) in its stats, infinite where
+/// a facet's pieces ran past [`MAX_PIECES`] (so that a budget's plan says it is not met). One band's
 /// image: the caller gives each band with a map of its own its frame.
 pub fn render_frame(
     scene: &Scene,
@@ -727,7 +729,12 @@ pub fn render_frame(
     let intr = &scene.camera.intrinsics;
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
     let total: f64 = c.pl.iter().sum();
-    let [median, p99, _, est_total] = estimate(&c.pl, &c.error_pl);
+    let [mut median, mut p99, _, mut est_total] = estimate(&c.pl, &c.error_pl);
+    if c.unconverged > 0 {
+        // A facet whose pieces ran past MAX_PIECES kept light that facets nearer the Sun or
+        // the camera may hide: the frame cannot say how far it is off, and says so.
+        (median, p99, est_total) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+    }
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats = FrameStats {
         phase_deg: super::reference::phase_deg(pose),

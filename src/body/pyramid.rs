@@ -100,27 +100,8 @@ impl MaxPyramid {
         let (w0, h0) = (map.width, map.height);
         let bottom = map.values.iter().fold(f32::MAX, |a, &v| a.min(v)) as f64;
         let bottom_radius_m = radius_m + bottom.min(0.0);
-        // Per cell (the texels from (r, c) to (r + 1, c + 1), which a bilinear height between
-        // them reads), the length of the steepest gradient within it [m/m]: each component
-        // is at most the larger of its two edges' differences, over the cell's shortest arc
-        // (at the lowest radius and the latitude nearest a pole).
         let (dlon, dlat) = map.spacing_rad();
-        let v = |r: usize, c: usize| map.values[r.min(h0 - 1) * w0 + c % w0] as f64;
-        let mut slope: Vec<f32> = Vec::with_capacity(w0 * h0);
-        for r in 0..h0 {
-            let polar = map
-                .row_lat(r)
-                .abs()
-                .max(map.row_lat((r + 1).min(h0 - 1)).abs());
-            let arc_e = bottom_radius_m * polar.cos().max(1e-9) * dlon;
-            let arc_n = bottom_radius_m * dlat;
-            for c in 0..w0 {
-                let (a, b, cc, d) = (v(r, c), v(r, c + 1), v(r + 1, c), v(r + 1, c + 1));
-                let e = (b - a).abs().max((d - cc).abs()) / arc_e;
-                let n = (cc - a).abs().max((d - b).abs()) / arc_n;
-                slope.push(e.hypot(n) as f32);
-            }
-        }
+        let mut slope = cell_slopes(map, bottom_radius_m);
         let mut levels = Vec::new();
         // Block maxima of level k, from level k - 1's (the last block of an odd count
         // covers one block).
@@ -197,6 +178,18 @@ impl MaxPyramid {
         best
     }
 
+    /// A bound on the ground's slope (the length of the bilinear surface's gradient, per
+    /// metre of arc at the lowest radius) wherever a point moving at most `dist_m` of arc
+    /// from `at` can read: the finest block whose reach holds that move. `None` where none
+    /// does (a move across a pole's narrow blocks).
+    pub fn slope_within(&self, map: &Map, at: &RayPoint, dist_m: f64) -> Option<f64> {
+        let place = Place::of(map, at);
+        self.levels.iter().find_map(|lvl| {
+            let (a, _, block) = lvl.reach(&place);
+            (a * self.bottom_radius_m >= dist_m).then(|| lvl.dilated_slope[block] as f64)
+        })
+    }
+
     /// Levels above the texels.
     pub fn depth(&self) -> usize {
         self.levels.len()
@@ -237,6 +230,40 @@ impl MaxPyramid {
         }
         best
     }
+}
+
+/// Per cell of `map` (the texels from (r, c) to (r + 1, c + 1), which a bilinear height
+/// between them reads), the length of the steepest gradient within it [m/m]: each component
+/// is at most the larger of its two edges' differences, over the cell's shortest arc (at
+/// `bottom_radius_m`, the lowest radius, and the latitude nearest a pole). A regional map's
+/// last column and every map's last row have no cell beyond them: their edges count alone.
+pub(crate) fn cell_slopes(map: &Map, bottom_radius_m: f64) -> Vec<f32> {
+    let (w0, h0) = (map.width, map.height);
+    let (dlon, dlat) = map.spacing_rad();
+    let east = |c: usize| {
+        if map.wraps() {
+            (c + 1) % w0
+        } else {
+            (c + 1).min(w0 - 1)
+        }
+    };
+    let v = |r: usize, c: usize| map.values[r.min(h0 - 1) * w0 + c] as f64;
+    let mut slope: Vec<f32> = Vec::with_capacity(w0 * h0);
+    for r in 0..h0 {
+        let polar = map
+            .row_lat(r)
+            .abs()
+            .max(map.row_lat((r + 1).min(h0 - 1)).abs());
+        let arc_e = bottom_radius_m * polar.cos().max(1e-9) * dlon;
+        let arc_n = bottom_radius_m * dlat;
+        for c in 0..w0 {
+            let (a, b, cc, d) = (v(r, c), v(r, east(c)), v(r + 1, c), v(r + 1, east(c)));
+            let e = (b - a).abs().max((d - cc).abs()) / arc_e;
+            let n = (cc - a).abs().max((d - b).abs()) / arc_n;
+            slope.push(e.hypot(n) as f32);
+        }
+    }
+    slope
 }
 
 /// The maxima of `values` (`w x h`) over blocks of 2 x 2 (the last block of an odd count

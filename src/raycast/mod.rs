@@ -376,6 +376,9 @@ impl<'a> Tracer<'a> {
         if g.mu0 <= 0.0 {
             return light;
         }
+        if self.past_shape_terminator(shape_normal, s) {
+            return light;
+        }
         let f_r = match &body.albedo_map {
             Some(m) => body
                 .brdf
@@ -476,6 +479,17 @@ impl<'a> Tracer<'a> {
         }
     }
 
+    /// Whether a point of the first body whose shape has the outward normal `shape_normal`
+    /// lies past the shape's own terminator (the Sun in unit direction `s`) under a DEM that
+    /// tilts the normals only: the shape stays where it is, so its ground there faces away
+    /// from the Sun however the DEM's normal leans. The renderer samples the shape's lit cap
+    /// (Eqs. 13-19) and both terrains' shadow rays leave such points to this test; a
+    /// displaced DEM meets its peaks lit beyond the terminator as geometry.
+    #[inline]
+    fn past_shape_terminator(&self, shape_normal: DVec3, s: DVec3) -> bool {
+        matches!(&self.scene.body.relief, Some(r) if !r.displaces()) && shape_normal.dot(s) <= 0.0
+    }
+
     /// The photometric geometry of the line of sight through `(u, v)` where it meets the first
     /// body in direct sunlight: `(mu0, mu, cos g, k)` with `k` the `(P/L)` per px^2 per unit of
     /// `f_r` (so that [`Tracer::cast`] gives `k f_r` there, scattered light aside). `None` where
@@ -498,7 +512,11 @@ impl<'a> Tracer<'a> {
         let d_sun2 = to_sun.length_squared();
         let s = to_sun / d_sun2.sqrt();
         let g = Local::new(normal, s, -dir);
-        if g.mu <= 0.0 || g.mu0 <= 0.0 || !self.sees_sun(p, up, normal, s, facet) {
+        if g.mu <= 0.0
+            || g.mu0 <= 0.0
+            || self.past_shape_terminator(shape_normal, s)
+            || !self.sees_sun(p, up, normal, s, facet)
+        {
             return None;
         }
         Some((

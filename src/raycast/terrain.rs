@@ -235,4 +235,60 @@ mod tests {
         assert_eq!(agree, n, "{agree} of {n} rays agree");
         assert!(fast.pyramid.as_ref().unwrap().depth() >= 6);
     }
+
+    /// The pipeline's marcher ([`Relief::occluded`]) and this tracer agree on shadow rays over
+    /// smooth hills at a low Sun (8 km high, 4.5 deg apart, slopes up to 0.18; the Sun 0.1 to
+    /// 15 deg up), where a grazing ray dips a few metres below a hilltop between two of the
+    /// marcher's quarter-texel steps. With the steps alone the marcher lit 220 of the 47,473
+    /// points in 200,000 that the tracer shadows (0.5 %, all one way: a total 2.5e-4 too
+    /// bright on the hills at 84 deg of phase); halving where the slopes allow a dip, it
+    /// finds them. What remains are dips of millimetres to decimetres that the tracer's
+    /// shortest step (a hundredth of a texel) passes over, found by the marcher alone.
+    #[test]
+    fn the_marcher_and_the_tracer_agree_on_grazing_shadow_rays() {
+        let (w, h) = (1440usize, 720usize);
+        let values = (0..w * h)
+            .map(|i| {
+                let lon = ((i % w) as f64 + 0.5) / w as f64 * std::f64::consts::TAU;
+                let lat = std::f64::consts::FRAC_PI_2
+                    - ((i / w) as f64 + 0.5) / h as f64 * std::f64::consts::PI;
+                4000.0 * (80.0 * lon).sin() * (80.0 * lat).cos()
+            })
+            .collect();
+        let map = Map::from_values(
+            std::path::Path::new("hills"),
+            w,
+            h,
+            values,
+            &Encoding::default(),
+        )
+        .unwrap();
+        let relief = Relief::new(map, 1_737_400.0, false).unwrap();
+        let tracer = Terrain::new(&relief);
+        let hash = crate::body::pyramid::unit_hash;
+        let (mut shadowed, mut marcher_only, mut tracer_only) = (0, 0, 0);
+        for k in 0..100_000 {
+            let u = |j: usize| hash(k * 7 + j) * 2.0 - 1.0;
+            let up = crate::geometry::unit_from_lon_lat(std::f64::consts::PI * u(2), 1.2 * u(1));
+            let (east, north) = crate::geometry::east_north(up);
+            let az = std::f64::consts::PI * u(3);
+            let elev = (0.1 + 15.0 * hash(k * 7 + 4)).to_radians();
+            let toward =
+                (elev.cos() * (az.cos() * east + az.sin() * north) + elev.sin() * up).normalize();
+            match (
+                relief.occluded(up, toward),
+                tracer.shadowed(up, toward, false),
+            ) {
+                (true, true) => shadowed += 1,
+                (true, false) => marcher_only += 1,
+                (false, true) => tracer_only += 1,
+                _ => {}
+            }
+        }
+        eprintln!("shadowed {shadowed}, marcher only {marcher_only}, tracer only {tracer_only}");
+        assert!(shadowed > 20_000, "{shadowed}");
+        // Before: about 110 the tracer alone shadowed.
+        assert!(tracer_only <= 5, "{tracer_only}");
+        assert!(marcher_only <= 30, "{marcher_only}");
+    }
 }

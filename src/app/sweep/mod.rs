@@ -337,8 +337,10 @@ fn reference_of(
 /// changes its images, so that no cache made before is read as its image. 2 and 3: a DEM that
 /// tilts the normals only weighs the light by the DEM normal's `cos(theta_r)` (Eq. 37) and
 /// hides what the terrain hides from the camera (Eq. 33). 4: cells near an edge whose rays
-/// agree ask their corners too (`corner_depth`), which finds a sub-pixel lune's light.
-const REFERENCE_MODEL: u32 = 4;
+/// agree ask their corners too (`corner_depth`), which finds a sub-pixel lune's light. 5: a
+/// DEM that tilts the normals only is dark past the shape's own terminator, where a normal
+/// leaning towards the Sun had lit it.
+const REFERENCE_MODEL: u32 = 5;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

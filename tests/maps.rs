@@ -559,6 +559,41 @@ fn the_textured_hapke_moon_over_a_pole_keeps_its_total() {
     assert!(e.median < 3e-3, "{e:?}");
 }
 
+/// The hills of [`with_hills`] seen from 1.4 radii at `phase_deg` (64 x 64, about 2 km a
+/// pixel), rendered at 4 points per pixel with 8 boundary nodes against the reference
+/// (tolerance 1e-4, `max_depth` halvings).
+fn hills_against_reference(
+    phase_deg: f64,
+    max_depth: u32,
+) -> (
+    optistim::fidelity::metrics::FrameError,
+    optistim::raycast::reference::ReferenceReport,
+) {
+    use optistim::raycast::reference::{self, ReferenceSettings};
+    let phase = phase_deg.to_radians();
+    let spec = SceneSpec {
+        brdf: "hapke",
+        albedo: 0.12,
+        camera_m: [1.4 * R_MOON, 0.0, 0.0],
+        sun_m: [AU * phase.cos(), AU * phase.sin(), 0.0],
+        resolution: [64, 64],
+        pixel_m: 88e-6,
+        render: "points_per_pixel = 4.0\nboundary_nodes = 8",
+        body: body_of("hapke"),
+        ..Default::default()
+    };
+    let cfg = with_hills(spec.config());
+    let settings = ReferenceSettings {
+        tolerance: 1e-4,
+        max_depth,
+        ..Default::default()
+    };
+    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
+    let (_, pl) = total(&cfg);
+    let e = optistim::fidelity::metrics::frame_error(&pl, &r.frame.pl, 64, 64);
+    (e, r.report)
+}
+
 /// `cfg` with hills 8 km from top to bottom, 4.5 deg apart (slopes up to 0.18), on a global
 /// 1440 x 720 grid, tilting the normals (no displacement) and casting their shadows by ray
 /// marching (set here, as the config refuses it without a DEM file); the reference casts them
@@ -590,30 +625,8 @@ fn with_hills(mut cfg: optistim::config::Config) -> optistim::config::Config {
 /// order in the slopes (at the NRHO's perilune on the LOLA map, median 5.7e-2).
 #[test]
 fn a_dem_tilting_the_normals_is_one_model_in_the_renderer_and_its_reference() {
-    use optistim::fidelity::metrics::frame_error;
-    use optistim::raycast::reference::{self, ReferenceSettings};
-    let phase = 30f64.to_radians();
-    let spec = SceneSpec {
-        brdf: "hapke",
-        albedo: 0.12,
-        // Close: the disk overfills the 64 x 64 frame (about 7 km a pixel, 2 px a texel).
-        camera_m: [1.4 * R_MOON, 0.0, 0.0],
-        sun_m: [AU * phase.cos(), AU * phase.sin(), 0.0],
-        resolution: [64, 64],
-        pixel_m: 88e-6,
-        render: "points_per_pixel = 4.0\nboundary_nodes = 8",
-        body: body_of("hapke"),
-        ..Default::default()
-    };
-    let cfg = with_hills(spec.config());
-    let settings = ReferenceSettings {
-        tolerance: 1e-4,
-        max_depth: 6,
-        ..Default::default()
-    };
-    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
-    let (_, pl) = total(&cfg);
-    let e = frame_error(&pl, &r.frame.pl, 64, 64);
+    // The disk overfills the frame (2 px a texel).
+    let (e, _) = hills_against_reference(30.0, 6);
     eprintln!("hills: {e:?}");
     assert!(e.median < 5e-4, "{e:?}");
     assert!(e.total.abs() < 5e-4, "{e:?}");
@@ -623,37 +636,14 @@ fn a_dem_tilting_the_normals_is_one_model_in_the_renderer_and_its_reference() {
 /// faces away from the Sun however its normal leans. The renderer samples the shape's lit cap
 /// (Eqs. 13-19); the reference had lit the slopes leaning sunward past it (its shadow rays,
 /// below the horizontal there, are left to that test), which put 5 % of the lit pixels of the
-/// NRHO apolune frame (phase 86 deg) 100 % off. The hills at 88 deg of phase: total 6.7e-4,
-/// p95 6.2e-2 (the reference's own p99 2.2e-2); with the slopes lit past the terminator,
+/// NRHO apolune frame (phase 86 deg) 100 % off. The hills at 88 deg of phase: total 6.0e-4,
+/// p95 5.7e-2 (the reference's own p99 2.2e-2); with the slopes lit past the terminator,
 /// total 5.0e-2, p95 0.50, p99 1.0.
 #[test]
 fn a_dem_that_tilts_the_normals_only_ends_at_the_shapes_terminator() {
-    use optistim::fidelity::metrics::frame_error;
-    use optistim::raycast::reference::{self, ReferenceSettings};
-    // The terminator 2 deg from the frame's centre, across the frame (about 2 km a pixel,
-    // 4 px a texel).
-    let phase = 88f64.to_radians();
-    let spec = SceneSpec {
-        brdf: "hapke",
-        albedo: 0.12,
-        camera_m: [1.4 * R_MOON, 0.0, 0.0],
-        sun_m: [AU * phase.cos(), AU * phase.sin(), 0.0],
-        resolution: [64, 64],
-        pixel_m: 88e-6,
-        render: "points_per_pixel = 4.0\nboundary_nodes = 8",
-        body: body_of("hapke"),
-        ..Default::default()
-    };
-    let cfg = with_hills(spec.config());
-    let settings = ReferenceSettings {
-        tolerance: 1e-4,
-        max_depth: 5,
-        ..Default::default()
-    };
-    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
-    let (_, pl) = total(&cfg);
-    let e = frame_error(&pl, &r.frame.pl, 64, 64);
-    eprintln!("hills at the terminator: {e:?}, reference {:?}", r.report);
+    // The terminator 2 deg from the frame's centre, across the frame.
+    let (e, report) = hills_against_reference(88.0, 5);
+    eprintln!("hills at the terminator: {e:?}, reference {report:?}");
     assert!(e.p95 < 0.15, "{e:?}");
     assert!(e.total.abs() < 5e-3, "{e:?}");
 }

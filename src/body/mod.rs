@@ -438,11 +438,11 @@ impl Relief {
     /// are marched (at [`NEAR_FIELD_STEPS`] within the first step, then a quarter texel a step,
     /// until the ray is above the highest point); the others cannot be blocked. Between two
     /// points above the ground, the ray may still dip below it (a grazing ray over a hilltop):
-    /// where the ground's steepest slope within reach allows that, the interval is halved
-    /// until it cannot ([`Relief::dips`]). A direction below the horizontal is left to the
-    /// BRDF's cosine on an undisplaced surface, and marched on a displaced one, whose points
-    /// beyond their own limb or terminator (a peak seen or lit over the horizon) may still
-    /// see the camera or the Sun.
+    /// where the slopes of the cells it crosses allow that, the lowest gap between its chord
+    /// and the bilinear ground is found and tested ([`Relief::dips`]). A direction below the
+    /// horizontal is left to the BRDF's cosine on an undisplaced surface, and marched on a
+    /// displaced one, whose points beyond their own limb or terminator (a peak seen or lit
+    /// over the horizon) may still see the camera or the Sun.
     pub fn occluded(&self, up: DVec3, toward: DVec3) -> bool {
         self.march(up, toward, true)
     }

@@ -345,8 +345,9 @@ impl Relief {
             .fold((f32::MAX, f32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
         let (bottom_m, top_m) = (bottom as f64, top as f64);
         let slope = |values| heights_m.with_values(values).map(std::sync::Arc::new);
-        let pyramid = pyramid::MaxPyramid::new(&heights_m, radius_m).map(std::sync::Arc::new);
         let cell_slope = pyramid::cell_slopes(&heights_m, radius_m + bottom_m.min(0.0));
+        let pyramid =
+            pyramid::MaxPyramid::new(&heights_m, radius_m, &cell_slope).map(std::sync::Arc::new);
         let max_cell_slope = cell_slope.iter().fold(0.0f64, |a, &b| a.max(b as f64));
         Ok(Relief {
             slope_east: slope(east)?,

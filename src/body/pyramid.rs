@@ -91,9 +91,10 @@ impl MaxLevel {
 }
 
 impl MaxPyramid {
-    /// The pyramid of `map` (heights [m] above a sphere of `radius_m`); `None` for a regional
+    /// The pyramid of `map` (heights [m] above a sphere of `radius_m`), whose cells' slopes
+    /// are `cell_slope` ([`cell_slopes`] at the lowest point's radius); `None` for a regional
     /// map.
-    pub fn new(map: &Map, radius_m: f64) -> Option<MaxPyramid> {
+    pub fn new(map: &Map, radius_m: f64, cell_slope: &[f32]) -> Option<MaxPyramid> {
         if !map.wraps() {
             return None;
         }
@@ -101,7 +102,7 @@ impl MaxPyramid {
         let bottom = map.values.iter().fold(f32::MAX, |a, &v| a.min(v)) as f64;
         let bottom_radius_m = radius_m + bottom.min(0.0);
         let (dlon, dlat) = map.spacing_rad();
-        let mut slope = cell_slopes(map, bottom_radius_m);
+        let mut slope = std::borrow::Cow::Borrowed(cell_slope);
         let mut levels = Vec::new();
         // Block maxima of level k, from level k - 1's (the last block of an odd count
         // covers one block).
@@ -110,7 +111,7 @@ impl MaxPyramid {
         for k in 1..16 {
             let (nw, nh) = (bw.div_ceil(2), bh.div_ceil(2));
             block = block_max(&block, bw, bh);
-            slope = block_max(&slope, bw, bh);
+            slope = std::borrow::Cow::Owned(block_max(&slope, bw, bh));
             (bw, bh) = (nw, nh);
             let side = 1usize << k;
             let span = side as f64 * dlat;

@@ -216,9 +216,14 @@ fn the_horizon_map_shadows_where_ray_marching_does() {
 /// against ray marching on the shared Moon, as above: it darkens about as many pixels as ray
 /// marching (95 %, 85 % of them the same: 89 % before ray marching tested the near field
 /// within its first step, whose shadows a horizon taken at texel centres places only to a
-/// texel), loses the same light to 5 %, and its 99th
+/// texel), loses the same light to 15 %, and its 99th
 /// percentile pixel error against ray marching is 7 % where the azimuth-blind horizon map's is
 /// 25 %. Its cache changes nothing: a second frame, the horizons found, is the same image.
+/// (The light lost was the same to 3 % while the visible ground was weighed by the DEM's
+/// interpolated normal; weighed by the ground's own ([`optistim::body::Relief::ground_normal`]),
+/// the ground facing the camera at the limb weighs more, and the horizon interpolated between
+/// texel centres hides more of it from the camera than the marched rays do: 0.233 % of the
+/// light lost against ray marching's 0.206 %, which was 0.207 % against 0.213 %.)
 #[test]
 fn the_dem_horizon_shadows_as_ray_marching_does() {
     use optistim::render::settings::SelfShadowing;
@@ -276,7 +281,7 @@ fn the_dem_horizon_shadows_as_ray_marching_does() {
     assert!((count(&dh) / count(&dr) - 1.0).abs() < 0.1);
     assert!(both >= 0.8 * count(&dr), "{both}");
     assert!(
-        (loss_dem / loss_ray - 1.0).abs() < 0.1,
+        (loss_dem / loss_ray - 1.0).abs() < 0.15,
         "{loss_dem} vs {loss_ray}"
     );
     assert!(
@@ -646,4 +651,66 @@ fn a_dem_that_tilts_the_normals_only_ends_at_the_shapes_terminator() {
     eprintln!("hills at the terminator: {e:?}, reference {report:?}");
     assert!(e.p95 < 0.15, "{e:?}");
     assert!(e.total.abs() < 5e-3, "{e:?}");
+}
+
+/// A displaced ground shows the camera its own projected area. The renderer weighs each
+/// surface point by `f_r mu0` times the area it shows the camera; the BRDF sees the DEM's
+/// interpolated slopes (smooth across the texels' edges), while a line of sight meets the
+/// bilinear ground, whose slopes are steeper where it faces the camera. Weighing the visible
+/// ground by the interpolated normal's `mu` and area left the limb dark: on the LOLA Moon at
+/// 20,000 km (256 x 256, `sweeps/issue15_dem_256_far.toml`) 1.3e-3 of the frame's light at
+/// any points per pixel; by the ground's own normal ([`optistim::body::Relief::ground_normal`]),
+/// 7e-5 to 6e-4 (the reference's own estimate 2.5e-4). Here a Lambert Moon of rough ground
+/// (heights random per 1-deg texel, +/- 3 km: slopes about 0.1, the ground's normal and the
+/// interpolated one apart) at 30 deg of phase, with its shadows, 16 points per pixel against
+/// a reference of own estimate total 3.4e-4: with the interpolated normal, total 2.5e-3 (the
+/// frame dark) and p99 0.23; by the ground's, total 1.0e-4 and p99 8.1e-2. (The median goes
+/// 4.0e-3 -> 5.3e-3: the ground's normal jumps at the texels' edges, which the quadrangles'
+/// nodes sample, where the interpolated one is continuous; it falls with the points.)
+#[test]
+fn a_displaced_ground_shows_the_camera_its_own_area() {
+    use optistim::raycast::reference::{self, ReferenceSettings};
+    let phase = 30f64.to_radians();
+    let spec = SceneSpec {
+        brdf: "lambert",
+        albedo: 0.12,
+        camera_m: [6.0 * R_MOON, 0.0, 0.0],
+        sun_m: [AU * phase.cos(), AU * phase.sin(), 0.0],
+        resolution: [64, 64],
+        pixel_m: 200e-6,
+        render: "points_per_pixel = 16.0\nboundary_nodes = 8",
+        ..Default::default()
+    };
+    let mut cfg = spec.config();
+    let (w, h) = (360usize, 180usize);
+    // A fixed pseudo-random field (an integer hash of the texel index), +/- 3 km.
+    let values = (0..w * h)
+        .map(|i| {
+            let mut x = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            x ^= x >> 31;
+            x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            x ^= x >> 29;
+            3000.0 * (2.0 * (x % 10_000) as f64 / 10_000.0 - 1.0)
+        })
+        .collect();
+    let map = Map::from_values(Path::new("rough"), w, h, values, &Encoding::default()).unwrap();
+    cfg.scene.body.relief = Some(optistim::body::Relief::new(map, R_MOON, true).unwrap());
+    cfg.settings.self_shadowing = optistim::render::settings::SelfShadowing::RayMarching;
+    let settings = ReferenceSettings {
+        tolerance: 1e-4,
+        max_depth: 5,
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
+    let (sum, pl) = total(&cfg);
+    let e = optistim::fidelity::metrics::frame_error(&pl, &r.frame.pl, 64, 64);
+    let signed = sum / r.frame.pl.iter().sum::<f64>() - 1.0;
+    eprintln!(
+        "rough displaced ground: {e:?}, signed total {signed:+.2e}, reference {:?} ({:.1} s)",
+        r.report,
+        t0.elapsed().as_secs_f64()
+    );
+    assert!(e.total < 6e-4, "{e:?}");
+    assert!(e.p99 < 0.15, "{e:?}");
 }

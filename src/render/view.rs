@@ -87,6 +87,10 @@ pub struct SurfacePoint {
     /// Area per solid angle relative to the shape's bounding `R^2`.
     pub area: f64,
     pub horizon_sin: Option<f64>,
+    /// On a displaced surface, the ground's own normal (CSF, its component along the point's
+    /// direction 1: [`Relief::ground_normal`]) and `(|p| / R)^2`: the area the point shows
+    /// the camera along unit direction `c` is `(ground . c) (|p| / R)^2` per solid angle.
+    pub ground: Option<(DVec3, f64)>,
 }
 
 impl<'a> View<'a> {
@@ -180,6 +184,7 @@ impl<'a> View<'a> {
                 normal: n,
                 area: self.area_factor(dir, p, n),
                 horizon_sin: None,
+                ground: None,
             };
         };
         let horizon = self.shadows == SelfShadowing::HorizonMap;
@@ -191,11 +196,19 @@ impl<'a> View<'a> {
         } else {
             self.surface(dir)
         };
+        let ground = r.displaces().then(|| {
+            let rb = self.shape.bounding_radius_m();
+            (
+                self.csf_from_body * r.ground_normal(self.body_dir(dir)),
+                p.length_squared() / (rb * rb),
+            )
+        });
         SurfacePoint {
             p,
             normal,
             area: self.area_factor(dir, p, n_geo),
             horizon_sin: at.horizon_sin,
+            ground,
         }
     }
 

@@ -387,6 +387,26 @@ impl Map {
             }
     }
 
+    /// The slope of [`Map::sample`]'s bilinear interpolant at `taps` (from this map or one of
+    /// the same grid), per texel: `(d/dx, d/dy)` with `x` along the columns (east) and `y`
+    /// along the rows (south). Within a cell the two are exact; on a cell's edge, the cell
+    /// the taps chose. `None` between the first (last) row's centres and a pole, where the
+    /// map blends towards the pole's value.
+    #[inline]
+    pub fn gradient(&self, t: &Taps) -> Option<(f64, f64)> {
+        if !matches!(t.pole, Pole::None) {
+            return None;
+        }
+        let v = t.texel.map(|k| self.values[k as usize] as f64);
+        let [_, b, c, d] = t.weight;
+        // The weights are (1-ty)(1-tx), (1-ty) tx, ty (1-tx) and ty tx.
+        let (tx, ty) = (b + d, c + d);
+        Some((
+            (1.0 - ty) * (v[1] - v[0]) + ty * (v[3] - v[2]),
+            (1.0 - tx) * (v[2] - v[0]) + tx * (v[3] - v[1]),
+        ))
+    }
+
     /// The next coarser level of an area-averaged pyramid: each texel the mean of a 2 x 2
     /// block, its rows weighted by their area (`cos` of their latitude), on the same extent
     /// (with its own pole values: the means of its first and last rows).

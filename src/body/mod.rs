@@ -272,6 +272,9 @@ pub struct ReliefSample {
     /// The surface normal (body frame).
     pub normal: DVec3,
     pub horizon_sin: Option<f64>,
+    /// The displaced ground's own normal ([`Relief::ground_normal`]; the point's direction
+    /// without displacement).
+    pub ground: DVec3,
 }
 
 /// The DEM's own horizon at one surface point: see [`Relief::dem_horizon_at`].
@@ -797,6 +800,7 @@ impl Relief {
                 height_m: 0.0,
                 normal: up,
                 horizon_sin: None,
+                ground: up,
             };
         };
         let (se, sn) = (self.slope_east.at(&taps), self.slope_north.at(&taps));
@@ -805,10 +809,11 @@ impl Relief {
             (Some(h), true) => h.sample(lon, lat),
             _ => None,
         };
-        let height_m = if self.displaces {
-            self.heights_m.at(&taps)
+        let (height_m, ground) = if self.displaces {
+            let h = self.heights_m.at(&taps);
+            (h, self.ground_normal_at(up, (lon, lat), &taps, h))
         } else {
-            0.0
+            (0.0, up)
         };
         let (east, north) = crate::geometry::east_north(up);
         let mut normal = (up - se * east - sn * north).normalize();
@@ -835,6 +840,7 @@ impl Relief {
             height_m,
             normal,
             horizon_sin,
+            ground,
         }
     }
 
@@ -846,31 +852,42 @@ impl Relief {
     /// direction `c`. [`Relief::at`]'s normal, which the BRDF sees, interpolates the texels'
     /// central-difference slopes instead (smooth across the cells' edges) and regresses
     /// towards the mean slope: weighing the visible ground by it left the limb of the
-    /// displaced Moon at 20,000 km 1.1e-3 of the frame's light short of the reference's
+    /// displaced Moon at 20,000 km 1.3e-3 of the frame's light short of the reference's
     /// lines of sight (`tests/maps.rs`). `up` itself without displacement or off the map.
     pub fn ground_normal(&self, up: DVec3) -> DVec3 {
         if !self.displaces {
             return up;
         }
+        self.at(up, false).ground
+    }
+
+    /// [`Relief::ground_normal`] at the point over `up` of longitude and latitude `lon`,
+    /// `lat` [rad], its taps on the DEM's grid and its height `h` found.
+    #[inline]
+    fn ground_normal_at(
+        &self,
+        up: DVec3,
+        (lon, lat): (f64, f64),
+        taps: &maps::Taps,
+        h: f64,
+    ) -> DVec3 {
         let map = &self.heights_m;
-        let (lon, lat) = crate::geometry::lon_lat_unit(up);
-        // Central differences a thousandth of a texel wide: the bilinear heights' own slope
-        // (the mean of the two cells' on an edge between them).
         let (dlon, dlat) = map.spacing_rad();
-        let (dl, dp) = (1e-3 * dlon, 1e-3 * dlat);
-        let h = |lon: f64, lat: f64| map.sample(lon, lat);
-        let (Some(h0), Some(he), Some(hw), Some(hn), Some(hs)) = (
-            h(lon, lat),
-            h(lon + dl, lat),
-            h(lon - dl, lat),
-            h(lon, lat + dp),
-            h(lon, lat - dp),
-        ) else {
-            return up;
+        let (dh_dlon, dh_dlat) = match map.gradient(taps) {
+            // Texel columns run east, rows south.
+            Some((dx, dy)) => (dx / dlon, -dy / dlat),
+            None => {
+                // Towards a pole the map blends to the pole's value: central differences a
+                // thousandth of a texel wide.
+                let (dl, dp) = (1e-3 * dlon, 1e-3 * dlat);
+                let h = |lon: f64, lat: f64| map.sample(lon, lat).unwrap_or(0.0);
+                (
+                    (h(lon + dl, lat) - h(lon - dl, lat)) / (2.0 * dl),
+                    (h(lon, lat + dp) - h(lon, lat - dp)) / (2.0 * dp),
+                )
+            }
         };
-        let rho = self.radius_m + h0;
-        let dh_dlon = (he - hw) / (2.0 * dl);
-        let dh_dlat = (hn - hs) / (2.0 * dp);
+        let rho = self.radius_m + h;
         let (east, north) = crate::geometry::east_north(up);
         up - dh_dlon / (rho * lat.cos().max(1e-9)) * east - dh_dlat / rho * north
     }

@@ -199,7 +199,7 @@ impl<'a> View<'a> {
         let ground = r.displaces().then(|| {
             let rb = self.shape.bounding_radius_m();
             (
-                self.csf_from_body * r.ground_normal(self.body_dir(dir)),
+                self.csf_from_body * at.ground,
                 p.length_squared() / (rb * rb),
             )
         });

@@ -809,13 +809,14 @@ impl Relief {
             (Some(h), true) => h.sample(lon, lat),
             _ => None,
         };
+        let (east, north) = crate::geometry::east_north(up);
         let (height_m, ground) = if self.displaces {
             let h = self.heights_m.at(&taps);
-            (h, self.ground_normal_at(up, (lon, lat), &taps, h))
+            let ground = self.ground_normal_at((up, east, north), (lon, lat), &taps, h);
+            (h, ground)
         } else {
             (0.0, up)
         };
-        let (east, north) = crate::geometry::east_north(up);
         let mut normal = (up - se * east - sn * north).normalize();
         if let Some(nm) = &self.normal_map {
             let local_taps;
@@ -861,12 +862,13 @@ impl Relief {
         self.at(up, false).ground
     }
 
-    /// [`Relief::ground_normal`] at the point over `up` of longitude and latitude `lon`,
-    /// `lat` [rad], its taps on the DEM's grid and its height `h` found.
+    /// [`Relief::ground_normal`] at the point over `up` (its local east and north found) of
+    /// longitude and latitude `lon`, `lat` [rad], its taps on the DEM's grid and its height
+    /// `h`.
     #[inline]
     fn ground_normal_at(
         &self,
-        up: DVec3,
+        (up, east, north): (DVec3, DVec3, DVec3),
         (lon, lat): (f64, f64),
         taps: &maps::Taps,
         h: f64,
@@ -887,9 +889,10 @@ impl Relief {
                 )
             }
         };
-        let rho = self.radius_m + h;
-        let (east, north) = crate::geometry::east_north(up);
-        up - dh_dlon / (rho * lat.cos().max(1e-9)) * east - dh_dlat / rho * north
+        let inv_rho = 1.0 / (self.radius_m + h);
+        // cos(lat) of the unit `up`, without a libm call.
+        let cos_lat = (up.x * up.x + up.y * up.y).sqrt().max(1e-9);
+        up - (dh_dlon * inv_rho / cos_lat) * east - (dh_dlat * inv_rho) * north
     }
 
     /// The same relief with a normal map (three maps of one grid; any scale and shift already

@@ -303,12 +303,13 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let (dc2, ds2) = (to_c.length_squared(), to_s.length_squared());
     let (dc, ds) = (dc2.sqrt(), ds2.sqrt());
     let cos_eps = view.to_camera(p).z / dc;
-    let mut g = Local::new(n, to_s / ds, to_c / dc);
+    let c_hat = to_c / dc;
+    let mut g = Local::new(n, to_s / ds, c_hat);
     // A displaced point shows the camera the ground's own projected area, whatever normal
     // the BRDF sees (as a pixel's lines of sight meet the ground): `area mu` becomes
     // `(ground . c) (|p|/R)^2` ([`crate::body::Relief::ground_normal`]).
     let area = match sp.ground {
-        Some((ground, r2)) if g.mu > 0.0 => (ground.dot(to_c / dc)).max(0.0) * r2 / g.mu,
+        Some((ground, r2)) if g.mu > 0.0 => ground.dot(c_hat).max(0.0) * r2 / g.mu,
         _ => area,
     };
     // A shadowed or hidden point contributes nothing (its cosine is taken as 0).

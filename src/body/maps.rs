@@ -498,6 +498,32 @@ mod tests {
         assert!((m.sample(PI - e, 0.1).unwrap() - m.sample(-PI + e, 0.1).unwrap()).abs() < 1e-6);
     }
 
+    /// The bilinear interpolant's slope is its own: within a cell, the difference quotient
+    /// of `sample` over a hundred-thousandth of a texel, per texel (columns east, rows
+    /// south); across the seam too; none between the first row's centres and the pole.
+    #[test]
+    fn the_gradient_is_the_bilinear_interpolants_slope() {
+        let m = ramp(16, 8, |c, r| {
+            ((c * 7 + r * 3) % 5) as f64 + 0.1 * (c * r) as f64
+        });
+        let (dlon, dlat) = m.spacing_rad();
+        let (e_lon, e_lat) = (1e-5 * dlon, 1e-5 * dlat);
+        for (x, y) in [(2.3, 1.6), (7.9, 3.2), (15.7, 2.5), (0.2, 6.4), (10.5, 0.7)] {
+            let lon = -PI + (x + 0.5) * dlon;
+            let lat = FRAC_PI_2 - (y + 0.5) * dlat;
+            let (gx, gy) = m.gradient(&m.taps(lon, lat).unwrap()).unwrap();
+            let s = |lon, lat| m.sample(lon, lat).unwrap();
+            let fx = (s(lon + e_lon, lat) - s(lon - e_lon, lat)) / (2e-5);
+            let fy = (s(lon, lat - e_lat) - s(lon, lat + e_lat)) / (2e-5);
+            assert!(
+                (gx - fx).abs() < 1e-6 && (gy - fy).abs() < 1e-6,
+                "{x} {y}: {gx} {fx} {gy} {fy}"
+            );
+        }
+        let near_pole = m.taps(0.3, FRAC_PI_2 - 0.2 * dlat).unwrap();
+        assert!(m.gradient(&near_pole).is_none());
+    }
+
     /// A halved level is the area-weighted mean of each 2 x 2 block, on the same extent: its
     /// area-weighted mean is the map's (a constant stays constant), and it samples the block's
     /// mean at the block's centre.

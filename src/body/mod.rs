@@ -1160,6 +1160,41 @@ mod tests {
         );
     }
 
+    /// The ground's normal is the displaced surface's own: perpendicular to the surface's
+    /// tangents (differences of the displaced points over a millionth of a texel, inside a
+    /// cell), and `up` without displacement.
+    #[test]
+    fn the_grounds_normal_is_perpendicular_to_the_displaced_surface() {
+        let (w, h) = (360usize, 180usize);
+        let v = (0..w * h)
+            .map(|i| 3000.0 * (((i * 7919) % 101) as f64 / 101.0 - 0.5))
+            .collect();
+        let dem =
+            Map::from_values(std::path::Path::new("rough"), w, h, v, &Encoding::default()).unwrap();
+        let relief = Relief::new(dem.clone(), MOON_R_M, true).unwrap();
+        let (dlon, dlat) = dem.spacing_rad();
+        let point = |lon: f64, lat: f64| {
+            crate::geometry::unit_from_lon_lat(lon, lat)
+                * (MOON_R_M + dem.sample(lon, lat).unwrap())
+        };
+        for (lon, lat) in [(0.3, 0.2), (-2.0, -1.1), (2.9, 1.3), (1.0, 0.004)] {
+            let up = crate::geometry::unit_from_lon_lat(lon, lat);
+            let n = relief.ground_normal(up);
+            assert!((n.dot(up) - 1.0).abs() < 1e-12);
+            let (el, ep) = (1e-6 * dlon, 1e-6 * dlat);
+            let east = point(lon + el, lat) - point(lon - el, lat);
+            let north = point(lon, lat + ep) - point(lon, lat - ep);
+            let n = n.normalize();
+            assert!(n.dot(east.normalize()).abs() < 1e-6, "{lon} {lat}");
+            assert!(n.dot(north.normalize()).abs() < 1e-6, "{lon} {lat}");
+            // The ground is tilted there: the checks above are not vacuous.
+            assert!(n.dot(up) < 1.0 - 1e-6);
+        }
+        let flat = Relief::new(dem, MOON_R_M, false).unwrap();
+        let up = crate::geometry::unit_from_lon_lat(0.3, 0.2);
+        assert_eq!(flat.ground_normal(up), up);
+    }
+
     /// A 1000 m wall running north-south at longitude 0-0.05 deg on a flat 4 x 4 deg DEM
     /// (400 x 400), and its cell [m].
     fn wall() -> (Relief, f64) {

@@ -653,20 +653,23 @@ fn a_dem_that_tilts_the_normals_only_ends_at_the_shapes_terminator() {
     assert!(e.total.abs() < 5e-3, "{e:?}");
 }
 
-/// A displaced ground shows the camera its own projected area. The renderer weighs each
-/// surface point by `f_r mu0` times the area it shows the camera; the BRDF sees the DEM's
-/// interpolated slopes (smooth across the texels' edges), while a line of sight meets the
-/// bilinear ground, whose slopes are steeper where it faces the camera. Weighing the visible
-/// ground by the interpolated normal's `mu` and area left the limb dark: on the LOLA Moon at
-/// 20,000 km (256 x 256, `sweeps/issue15_dem_256_far.toml`) 1.3e-3 of the frame's light at
-/// any points per pixel; by the ground's own normal ([`optistim::body::Relief::ground_normal`]),
-/// 7e-5 to 6e-4 (the reference's own estimate 2.5e-4). Here a Lambert Moon of rough ground
-/// (heights random per 1-deg texel, +/- 3 km: slopes about 0.1, the ground's normal and the
-/// interpolated one apart) at 30 deg of phase, with its shadows, 16 points per pixel against
-/// a reference of own estimate total 3.4e-4: with the interpolated normal, total 2.5e-3 (the
-/// frame dark) and p99 0.23; by the ground's, total 1.0e-4 and p99 8.1e-2. (The median goes
-/// 4.0e-3 -> 5.3e-3: the ground's normal jumps at the texels' edges, which the quadrangles'
-/// nodes sample, where the interpolated one is continuous; it falls with the points.)
+/// A displaced ground shows the camera its own projected area where the terrain may hide the
+/// camera. The renderer weighs each surface point by `f_r mu0` times the area it shows the
+/// camera; the BRDF sees the DEM's interpolated slopes (smooth across the texels' edges),
+/// while a line of sight meets the bilinear ground, and near the limb the camera's occlusion
+/// keeps the ground that faces it, steeper than the interpolated slopes say. Weighing the
+/// visible ground by the interpolated normal's `mu` and area left the limb dark: on the LOLA
+/// Moon at 20,000 km (256 x 256, `sweeps/issue15_dem_256_far.toml`) 1.3e-3 of the frame's
+/// light at any points per pixel; with the ground's own normal
+/// ([`optistim::body::Relief::ground_normal`]) where the camera is lower than the DEM's
+/// steep slopes, 1.8e-4 to 5.1e-4 (the reference's own estimate 2.5e-4). Here a Lambert
+/// Moon of rough ground (heights random per 1-deg texel, +/- 3 km) at 30 deg of phase, with
+/// its shadows, 16 points per pixel against a reference of own estimate total 3.4e-4: with
+/// the interpolated normal, total 2.5e-3 (the frame dark) and p99 0.23; now total 1.8e-6 and
+/// p99 8.1e-2. (The median goes 4.0e-3 -> 5.1e-3: on ground this rough most of the disk is
+/// below its steep slopes, and the ground's normal jumps at the texels' edges, which the
+/// quadrangles' gridding smears; the ground's normal everywhere gave 5.3e-3 and total
+/// 1.0e-4.)
 #[test]
 fn a_displaced_ground_shows_the_camera_its_own_area() {
     use optistim::raycast::reference::{self, ReferenceSettings};

@@ -226,6 +226,8 @@ pub struct Relief {
     bottom_m: f64,
     /// The steepest slope anywhere (tan of its angle).
     max_slope: f64,
+    /// The 99th percentile of the slopes (tan of their angle, every 16th texel's).
+    steep_slope: f64,
     /// The steepest slope of the bilinear surface in each cell between four texel centres,
     /// per metre of arc at the lowest radius ([`pyramid::cell_slopes`]), and anywhere: the
     /// bounds of a marched ray's dips ([`Relief::dips`]).
@@ -342,6 +344,18 @@ impl Relief {
             .zip(&north)
             .map(|(e, n)| (e * e + n * n).sqrt())
             .fold(0.0, f64::max);
+        // The 99th percentile of the slopes (every 16th texel's).
+        let mut sampled: Vec<f64> = east
+            .iter()
+            .zip(&north)
+            .step_by(16)
+            .map(|(e, n)| (e * e + n * n).sqrt())
+            .collect();
+        let steep_slope = if sampled.is_empty() {
+            0.0
+        } else {
+            crate::stats::quantiles(&mut sampled, [0.99])[0]
+        };
         let (bottom, top) = heights_m
             .values
             .iter()
@@ -360,6 +374,7 @@ impl Relief {
             top_m,
             bottom_m,
             max_slope,
+            steep_slope,
             cell_slope: std::sync::Arc::new(cell_slope),
             max_cell_slope,
             step_m: 0.25 * radius_m * dlat,
@@ -845,6 +860,15 @@ impl Relief {
         }
     }
 
+    /// Whether direction `toward` (unit, body frame) rises over the horizontal of the point
+    /// over the unit direction `up` less steeply than the DEM's steep slopes (their 99th
+    /// percentile): where the terrain may often hide it.
+    #[inline]
+    pub fn below_steep_slopes(&self, up: DVec3, toward: DVec3) -> bool {
+        let rise = toward.dot(up);
+        rise < self.steep_slope * (1.0 - rise * rise).max(0.0).sqrt()
+    }
+
     /// The normal of the displaced ground itself at the point over the unit direction `up`
     /// (body frame), unnormalised so that its component along `up` is 1:
     /// `up - dh/dlon / (rho cos lat) east - dh/dlat / rho north`, with `h` the bilinear
@@ -852,9 +876,11 @@ impl Relief {
     /// of sight meets: `(n . c) rho^2 dOmega` is the area it shows the camera along unit
     /// direction `c`. [`Relief::at`]'s normal, which the BRDF sees, interpolates the texels'
     /// central-difference slopes instead (smooth across the cells' edges) and regresses
-    /// towards the mean slope: weighing the visible ground by it left the limb of the
-    /// displaced Moon at 20,000 km 1.3e-3 of the frame's light short of the reference's
-    /// lines of sight (`tests/maps.rs`). `up` itself without displacement or off the map.
+    /// towards the mean slope: where the terrain may hide the camera (near the limb), which
+    /// keeps the ground facing it, weighing the visible ground by it left the displaced Moon
+    /// at 20,000 km 1.3e-3 of the frame's light short of the reference's lines of sight
+    /// (`render::integration`, `tests/maps.rs`). `up` itself without displacement or off the
+    /// map.
     pub fn ground_normal(&self, up: DVec3) -> DVec3 {
         if !self.displaces {
             return up;

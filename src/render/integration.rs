@@ -305,11 +305,19 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     let cos_eps = view.to_camera(p).z / dc;
     let c_hat = to_c / dc;
     let mut g = Local::new(n, to_s / ds, c_hat);
-    // A displaced point shows the camera the ground's own projected area, whatever normal
-    // the BRDF sees (as a pixel's lines of sight meet the ground): `area mu` becomes
-    // `(ground . c) (|p|/R)^2` ([`crate::body::Relief::ground_normal`]).
+    // A displaced point where the terrain may hide the camera shows it the ground's own
+    // projected area, whatever normal the BRDF sees (as a pixel's lines of sight meet the
+    // ground): `area mu` becomes `(ground . c) (|p|/R)^2`
+    // ([`crate::body::Relief::ground_normal`]). There the camera's occlusion keeps the
+    // ground facing it, which is steeper than the interpolated normal says: weighed by that
+    // normal, the LOLA Moon's limb was 1.1e-3 of the frame's light dark. Elsewhere every
+    // point is seen, the two weights integrate to the same area over a pixel, and the
+    // interpolated normal's, continuous across the texels' edges, is gridded better (the
+    // ground's everywhere doubled the median at 20,000 km and 110 deg of phase).
     let area = match sp.ground {
-        Some((ground, r2)) if g.mu > 0.0 => ground.dot(c_hat).max(0.0) * r2 / g.mu,
+        Some((ground, r2)) if g.mu > 0.0 && view.camera_below_steep_slopes(dir, c_hat) => {
+            ground.dot(c_hat).max(0.0) * r2 / g.mu
+        }
         _ => area,
     };
     // A shadowed or hidden point contributes nothing (its cosine is taken as 0).

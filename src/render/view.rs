@@ -267,6 +267,16 @@ impl<'a> View<'a> {
         }
     }
 
+    /// Whether the camera (along CSF unit `c_hat`) is lower over the surface point over CSF
+    /// direction `dir` than the relief's steep slopes ([`Relief::below_steep_slopes`]);
+    /// false without a relief.
+    #[inline]
+    pub fn camera_below_steep_slopes(&self, dir: DVec3, c_hat: DVec3) -> bool {
+        self.relief.is_some_and(|r| {
+            r.below_steep_slopes(self.body_dir(dir), self.csf.body_from_csf * c_hat)
+        })
+    }
+
     /// Zeroes `g.mu0` (when `sun`) and `g.mu` (when `cam`) where `hidden(up, toward)` (body
     /// frame: the point's direction from the centre, the unit direction to the Sun or the
     /// camera) says so.

@@ -269,12 +269,14 @@ impl<'a> View<'a> {
 
     /// Whether the camera (along CSF unit `c_hat`) is lower over the surface point over CSF
     /// direction `dir` than the relief's steep slopes ([`Relief::below_steep_slopes`]);
-    /// false without a relief.
+    /// false without a relief. For a sphere's grid (the CSF itself, as a displacing DEM's
+    /// is), `dir` is the point's direction from the centre and the test, a dot product, is
+    /// the same in either frame.
     #[inline]
     pub fn camera_below_steep_slopes(&self, dir: DVec3, c_hat: DVec3) -> bool {
-        self.relief.is_some_and(|r| {
-            r.below_steep_slopes(self.body_dir(dir), self.csf.body_from_csf * c_hat)
-        })
+        debug_assert!(self.grid.affine.is_none());
+        self.relief
+            .is_some_and(|r| r.below_steep_slopes(dir, c_hat))
     }
 
     /// Zeroes `g.mu0` (when `sun`) and `g.mu` (when `cam`) where `hidden(up, toward)` (body

@@ -274,9 +274,9 @@ pub struct ReliefSample {
     /// The surface normal (body frame).
     pub normal: DVec3,
     pub horizon_sin: Option<f64>,
-    /// The displaced ground's own normal ([`Relief::ground_normal`]; the point's direction
-    /// without displacement).
-    pub ground: DVec3,
+    /// The slope of the displaced ground's bilinear heights, `(dh/dlon, dh/dlat)` [m/rad]
+    /// ((0, 0) without displacement): [`Relief::ground_from`] makes it the ground's normal.
+    pub ground_slope: (f64, f64),
 }
 
 /// The DEM's own horizon at one surface point: see [`Relief::dem_horizon_at`].
@@ -815,7 +815,7 @@ impl Relief {
                 height_m: 0.0,
                 normal: up,
                 horizon_sin: None,
-                ground: up,
+                ground_slope: (0.0, 0.0),
             };
         };
         let (se, sn) = (self.slope_east.at(&taps), self.slope_north.at(&taps));
@@ -824,14 +824,15 @@ impl Relief {
             (Some(h), true) => h.sample(lon, lat),
             _ => None,
         };
-        let (east, north) = crate::geometry::east_north(up);
-        let (height_m, ground) = if self.displaces {
-            let h = self.heights_m.at(&taps);
-            let ground = self.ground_normal_at((up, east, north), (lon, lat), &taps, h);
-            (h, ground)
+        let (height_m, ground_slope) = if self.displaces {
+            (
+                self.heights_m.at(&taps),
+                self.ground_slope_at((lon, lat), &taps),
+            )
         } else {
-            (0.0, up)
+            (0.0, (0.0, 0.0))
         };
+        let (east, north) = crate::geometry::east_north(up);
         let mut normal = (up - se * east - sn * north).normalize();
         if let Some(nm) = &self.normal_map {
             let local_taps;
@@ -856,7 +857,7 @@ impl Relief {
             height_m,
             normal,
             horizon_sin,
-            ground,
+            ground_slope,
         }
     }
 
@@ -865,8 +866,9 @@ impl Relief {
     /// percentile): where the terrain may often hide it.
     #[inline]
     pub fn below_steep_slopes(&self, up: DVec3, toward: DVec3) -> bool {
-        let rise = toward.dot(up);
-        rise < self.steep_slope * (1.0 - rise * rise).max(0.0).sqrt()
+        // rise < k sqrt(1 - rise^2), without the root.
+        let (rise, k2) = (toward.dot(up), self.steep_slope * self.steep_slope);
+        rise < 0.0 || rise * rise * (1.0 + k2) < k2
     }
 
     /// The normal of the displaced ground itself at the point over the unit direction `up`
@@ -885,23 +887,27 @@ impl Relief {
         if !self.displaces {
             return up;
         }
-        self.at(up, false).ground
+        self.ground_from(up, &self.at(up, false))
     }
 
-    /// [`Relief::ground_normal`] at the point over `up` (its local east and north found) of
-    /// longitude and latitude `lon`, `lat` [rad], its taps on the DEM's grid and its height
-    /// `h`.
+    /// [`Relief::ground_normal`] from the point's [`Relief::at`] sample.
     #[inline]
-    fn ground_normal_at(
-        &self,
-        (up, east, north): (DVec3, DVec3, DVec3),
-        (lon, lat): (f64, f64),
-        taps: &maps::Taps,
-        h: f64,
-    ) -> DVec3 {
+    pub fn ground_from(&self, up: DVec3, at: &ReliefSample) -> DVec3 {
+        let (dh_dlon, dh_dlat) = at.ground_slope;
+        let inv_rho = 1.0 / (self.radius_m + at.height_m);
+        // cos(lat) of the unit `up`, without a libm call.
+        let cos_lat = (up.x * up.x + up.y * up.y).sqrt().max(1e-9);
+        let (east, north) = crate::geometry::east_north(up);
+        up - (dh_dlon * inv_rho / cos_lat) * east - (dh_dlat * inv_rho) * north
+    }
+
+    /// The slope of the bilinear heights `(dh/dlon, dh/dlat)` [m/rad] at longitude and
+    /// latitude `lon`, `lat` [rad], its taps on the DEM's grid found.
+    #[inline]
+    fn ground_slope_at(&self, (lon, lat): (f64, f64), taps: &maps::Taps) -> (f64, f64) {
         let map = &self.heights_m;
         let (dlon, dlat) = map.spacing_rad();
-        let (dh_dlon, dh_dlat) = match map.gradient(taps) {
+        match map.gradient(taps) {
             // Texel columns run east, rows south.
             Some((dx, dy)) => (dx / dlon, -dy / dlat),
             None => {
@@ -914,11 +920,7 @@ impl Relief {
                     (h(lon, lat + dp) - h(lon, lat - dp)) / (2.0 * dp),
                 )
             }
-        };
-        let inv_rho = 1.0 / (self.radius_m + h);
-        // cos(lat) of the unit `up`, without a libm call.
-        let cos_lat = (up.x * up.x + up.y * up.y).sqrt().max(1e-9);
-        up - (dh_dlon * inv_rho / cos_lat) * east - (dh_dlat * inv_rho) * north
+        }
     }
 
     /// The same relief with a normal map (three maps of one grid; any scale and shift already

@@ -315,8 +315,8 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     // interpolated normal's, continuous across the texels' edges, is gridded better (the
     // ground's everywhere doubled the median at 20,000 km and 110 deg of phase).
     let area = match sp.ground {
-        Some((ground, r2)) if g.mu > 0.0 && view.camera_below_steep_slopes(dir, c_hat) => {
-            ground.dot(c_hat).max(0.0) * r2 / g.mu
+        Some(at) if g.mu > 0.0 && view.camera_below_steep_slopes(dir, c_hat) => {
+            view.ground_area(&sp, dir, &at, c_hat) / g.mu
         }
         _ => area,
     };

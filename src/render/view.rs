@@ -3,7 +3,7 @@
 //! directions ([`Grid`]).
 
 use super::settings::{FovShape, SelfShadowing};
-use crate::body::{Relief, Shape};
+use crate::body::{Relief, ReliefSample, Shape};
 use crate::brdf::Local;
 use crate::camera::Intrinsics;
 use crate::geometry::CsfFrame;
@@ -87,10 +87,9 @@ pub struct SurfacePoint {
     /// Area per solid angle relative to the shape's bounding `R^2`.
     pub area: f64,
     pub horizon_sin: Option<f64>,
-    /// On a displaced surface, the ground's own normal (CSF, its component along the point's
-    /// direction 1: [`Relief::ground_normal`]) and `(|p| / R)^2`: the area the point shows
-    /// the camera along unit direction `c` is `(ground . c) (|p| / R)^2` per solid angle.
-    pub ground: Option<(DVec3, f64)>,
+    /// On a displaced surface, the DEM at the point ([`Relief::at`]), whose ground slope
+    /// [`View::ground_area`] makes the area the point shows the camera.
+    pub ground: Option<ReliefSample>,
 }
 
 impl<'a> View<'a> {
@@ -198,13 +197,7 @@ impl<'a> View<'a> {
         } else {
             self.surface(dir)
         };
-        let ground = r.displaces().then(|| {
-            let rb = self.shape.bounding_radius_m();
-            (
-                self.csf_from_body * at.ground,
-                p.length_squared() / (rb * rb),
-            )
-        });
+        let ground = r.displaces().then_some(at);
         SurfacePoint {
             p,
             normal,
@@ -265,6 +258,27 @@ impl<'a> View<'a> {
                 g.mu = 0.0;
             }
         }
+    }
+
+    /// The area per solid angle, relative to the shape's bounding `R^2`, that the displaced
+    /// surface point `sp` over CSF direction `dir`, of DEM sample `at`
+    /// ([`SurfacePoint::ground`]), shows the camera along CSF unit `c_hat`:
+    /// `(n_g . c) (|p| / R)^2` with `n_g` the ground's own normal ([`Relief::ground_normal`]),
+    /// 0 where it faces away; 0 without a relief.
+    #[inline]
+    pub fn ground_area(
+        &self,
+        sp: &SurfacePoint,
+        dir: DVec3,
+        at: &ReliefSample,
+        c_hat: DVec3,
+    ) -> f64 {
+        let Some(r) = self.relief else {
+            return 0.0;
+        };
+        let ground = self.csf_from_body * r.ground_from(self.body_dir(dir), at);
+        let rb = self.shape.bounding_radius_m();
+        ground.dot(c_hat).max(0.0) * sp.p.length_squared() / (rb * rb)
     }
 
     /// Whether the camera (along CSF unit `c_hat`) is lower over the surface point over CSF

@@ -172,10 +172,10 @@ impl<'a> View<'a> {
 
     /// Everything the integrand needs at the surface over CSF unit direction `dir`: the point,
     /// the normal the BRDF sees (the shape's, or the DEM's), the area per solid angle
-    /// ([`View::area_factor`]), on a displaced surface the ground's own normal (the area the
-    /// point shows the camera follows it, not the BRDF's normal: [`SurfacePoint::ground`])
-    /// and, with horizon-map shadows, the sine of the local horizon (for [`View::shadow`]).
-    /// One relief lookup.
+    /// ([`View::area_factor`]), on a displaced surface the DEM's sample there (whose ground
+    /// slope gives the area the point shows the camera where the terrain may hide it:
+    /// [`SurfacePoint::ground`]) and, with horizon-map shadows, the sine of the local horizon
+    /// (for [`View::shadow`]). One relief lookup.
     #[inline]
     pub fn surface_point(&self, dir: DVec3) -> SurfacePoint {
         let Some(r) = self.relief else {

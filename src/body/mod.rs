@@ -344,7 +344,8 @@ impl Relief {
             .zip(&north)
             .map(|(e, n)| (e * e + n * n).sqrt())
             .fold(0.0, f64::max);
-        // The 99th percentile of the slopes (every 16th texel's).
+        // The 99th percentile of the slopes (every 16th texel's): where the camera may often
+        // be hidden (Relief::below_steep_slopes), and the planner's steepness.
         let mut sampled: Vec<f64> = east
             .iter()
             .zip(&north)
@@ -963,22 +964,13 @@ impl Relief {
         let (e, n) = (&self.slope_east.values, &self.slope_north.values);
         let w = self.slope_east.width;
         let (mut sum, mut count) = (0.0, 0usize);
-        let mut mags: Vec<f64> = Vec::with_capacity(e.len() / 16 + 1);
         for i in 0..e.len() {
             if i % w + 1 < w {
                 sum += ((e[i + 1] - e[i]).abs() + (n[i + 1] - n[i]).abs()) as f64;
                 count += 1;
             }
-            if i % 16 == 0 {
-                mags.push((e[i] as f64).hypot(n[i] as f64));
-            }
         }
-        let p99 = if mags.is_empty() {
-            0.0
-        } else {
-            crate::stats::quantiles(&mut mags, [0.99])[0]
-        };
-        (sum / count.max(1) as f64, p99)
+        (sum / count.max(1) as f64, self.steep_slope)
     }
 
     /// Whether the DEM displaces the surface (else it only tilts the normals).

@@ -314,11 +314,12 @@ fn sample(view: &View, dir: DVec3) -> (Local, f64) {
     // point is seen, the two weights integrate to the same area over a pixel, and the
     // interpolated normal's, continuous across the texels' edges, is gridded better (the
     // ground's everywhere doubled the median at 20,000 km and 110 deg of phase).
-    let area = match sp.ground {
-        Some(at) if g.mu > 0.0 && view.camera_below_steep_slopes(dir, c_hat) => {
-            view.ground_area(&sp, dir, &at, c_hat) / g.mu
-        }
-        _ => area,
+    // (The cheap tests first: the ground's area is made only where it weighs.)
+    let area = if sp.ground.is_some() && g.mu > 0.0 && view.camera_below_steep_slopes(dir, c_hat) {
+        view.ground_area(&sp, dir, c_hat)
+            .map_or(area, |shown| shown / g.mu)
+    } else {
+        area
     };
     // A shadowed or hidden point contributes nothing (its cosine is taken as 0).
     view.shadow(dir, p, sp.horizon_sin, &mut g);

@@ -261,24 +261,15 @@ impl<'a> View<'a> {
     }
 
     /// The area per solid angle, relative to the shape's bounding `R^2`, that the displaced
-    /// surface point `sp` over CSF direction `dir`, of DEM sample `at`
-    /// ([`SurfacePoint::ground`]), shows the camera along CSF unit `c_hat`:
-    /// `(n_g . c) (|p| / R)^2` with `n_g` the ground's own normal ([`Relief::ground_normal`]),
-    /// 0 where it faces away; 0 without a relief.
+    /// surface point `sp` over CSF direction `dir` shows the camera along CSF unit `c_hat`:
+    /// `(n_g . c) (|p| / R)^2` with `n_g` the ground's own normal ([`Relief::ground_normal`],
+    /// from [`SurfacePoint::ground`]), 0 where it faces away; `None` off a displaced surface.
     #[inline]
-    pub fn ground_area(
-        &self,
-        sp: &SurfacePoint,
-        dir: DVec3,
-        at: &ReliefSample,
-        c_hat: DVec3,
-    ) -> f64 {
-        let Some(r) = self.relief else {
-            return 0.0;
-        };
+    pub fn ground_area(&self, sp: &SurfacePoint, dir: DVec3, c_hat: DVec3) -> Option<f64> {
+        let (r, at) = (self.relief?, sp.ground.as_ref()?);
         let ground = self.csf_from_body * r.ground_from(self.body_dir(dir), at);
         let rb = self.shape.bounding_radius_m();
-        ground.dot(c_hat).max(0.0) * sp.p.length_squared() / (rb * rb)
+        Some(ground.dot(c_hat).max(0.0) * sp.p.length_squared() / (rb * rb))
     }
 
     /// Whether the camera (along CSF unit `c_hat`) is lower over the surface point over CSF

@@ -410,7 +410,7 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
         Card::new(
             "MAPFILT",
             Value::Str(map_filter),
-            "chosen: albedo map read per area or pixel",
+            "chosen: map (and relief) read per area or pixel",
         ),
         f(
             "PREDMED",

@@ -270,7 +270,7 @@ impl Validator<'_> {
         }
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
         let settings = self.render(&raw.render, &body)?;
-        if !body.band_maps.is_empty() && settings.map_filter != crate::render::MapFilter::Pixel {
+        if !body.band_maps.is_empty() && !settings.map_filter.per_pixel() {
             return self.err(
                 "render.map_filter",
                 format!("{:?}", settings.map_filter).to_lowercase(),
@@ -1695,6 +1695,7 @@ impl Validator<'_> {
                     ("point", MapFilter::Point),
                     ("area", MapFilter::Area),
                     ("pixel", MapFilter::Pixel),
+                    ("relief", MapFilter::Relief),
                 ],
             )?;
         }

@@ -521,7 +521,7 @@ pub fn integrate(
                         let scale = match map_filter {
                             MapFilter::Point => a.scale_at(n_body, brdf.scale()),
                             // (Under `Pixel` the renderer passes no map here.)
-                            MapFilter::Area | MapFilter::Pixel => {
+                            MapFilter::Area | MapFilter::Pixel | MapFilter::Relief => {
                                 let side = ((trig.lon[i + 1] - trig.lon[i]) * area_lat).sqrt();
                                 a.scale_over(n_body, side, brdf.scale())
                             }

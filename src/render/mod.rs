@@ -4,7 +4,8 @@
 //! ```text
 //! pose -> view (CSF) -> bounding -> sampling -> pruning -> integration -> projection
 //!      -> gridding (fixed point) -> reconstruction (super-sampling)
-//!      -> footprint (the albedo map over each pixel, `map_filter = "pixel"`) -> (P/L) image
+//!      -> footprint (the albedo map over each pixel, `map_filter = "pixel"`; and the
+//!         relief's shading and shadows, `"relief"`) -> (P/L) image
 //!      [+ depth]
 //! ```
 //!
@@ -31,6 +32,7 @@ use pruning::{INTERIOR, PRUNED};
 use rayon::prelude::*;
 use sampling::GridTrig;
 use serde::Serialize;
+use settings::SelfShadowing;
 pub use settings::{FovShape, Integration, MapFilter, PointBudget, Sampling, Settings, Split};
 use std::time::Instant;
 use view::View;
@@ -312,11 +314,18 @@ fn view_through<'a>(
     pose: &Pose,
     settings: &Settings,
 ) -> View<'a> {
+    // Under `MapFilter::Relief` the quadrangles integrate the smooth shape: the relief comes
+    // in per pixel ([`footprint`]).
+    let relief_per_pixel = settings.map_filter == MapFilter::Relief;
     View::new(
         intr,
         &scene.body.shape,
-        scene.body.relief.as_ref(),
-        settings.self_shadowing,
+        scene.body.relief.as_ref().filter(|_| !relief_per_pixel),
+        if relief_per_pixel {
+            SelfShadowing::Off
+        } else {
+            settings.self_shadowing
+        },
         pose,
         settings.supersampling,
         settings.fov,
@@ -459,7 +468,7 @@ fn render_in_pool(
     let mut t = StageTimings::default();
     // Under `MapFilter::Pixel` the quadrangles see the map's mean and the footprint step
     // brings the map in per pixel.
-    if !scene.body.band_maps.is_empty() && settings.map_filter != MapFilter::Pixel {
+    if !scene.body.band_maps.is_empty() && !settings.map_filter.per_pixel() {
         return Err(RenderError::BadSettings {
             field: "map_filter",
             value: format!("{:?}", settings.map_filter).to_lowercase(),
@@ -467,8 +476,26 @@ fn render_in_pool(
                       they are read over each pixel's footprint",
         });
     }
+    let relief_per_pixel = settings.map_filter == MapFilter::Relief;
+    if relief_per_pixel && scene.body.albedo_map.is_none() {
+        return Err(RenderError::BadSettings {
+            field: "map_filter",
+            value: "relief".into(),
+            allowed: "\"relief\" for a body with an albedo map (body.albedo_map), whose reads \
+                      over each pixel carry the relief",
+        });
+    }
+    if relief_per_pixel && scene.body.relief.as_ref().is_some_and(|r| r.displaces()) {
+        return Err(RenderError::BadSettings {
+            field: "map_filter",
+            value: "relief".into(),
+            allowed: "\"pixel\" or \"area\" for a displaced DEM (body.dem_map with displace): \
+                      \"relief\" reads the shading of a relief that leaves the shape's surface \
+                      where it is",
+        });
+    }
     let (brdf, quad_albedo, pixel_map) = match (&scene.body.albedo_map, settings.map_filter) {
-        (Some(a), MapFilter::Pixel) => {
+        (Some(a), MapFilter::Pixel | MapFilter::Relief) => {
             let s_ref = footprint::reference_scale(a, scene.body.brdf.scale());
             (scene.body.brdf.with_scale(s_ref), None, Some(a))
         }
@@ -562,7 +589,10 @@ fn render_in_pool(
     stats.total_pl_image = stats.total_pl_gridded;
     if let Some(a) = pixel_map {
         let t0 = Instant::now();
-        let relief = scene.body.relief.as_ref();
+        let (relief, shading) = match scene.body.relief.as_ref() {
+            Some(r) if relief_per_pixel => (None, Some((r, settings.self_shadowing))),
+            r => (r, None),
+        };
         let shape = &scene.body.shape;
         // A band with a map of its own but the camera's distortion: the gridded geometry,
         // before the camera's map comes in.
@@ -579,14 +609,14 @@ fn render_in_pool(
         for (b, img) in camera_view {
             layers.push((scene.body.band_map(*b).unwrap_or(a), &mut img[..]));
         }
-        footprint::apply_maps(intr, shape, relief, &brdf, pose, &mut layers);
+        footprint::apply_maps(intr, shape, relief, shading, &brdf, pose, &mut layers);
         for (b, img) in own_view {
             let intr_b = band_intr
                 .iter()
                 .find(|(k, _)| k == b)
                 .map_or(intr, |(_, i)| i);
             let map = scene.body.band_map(*b).unwrap_or(a);
-            footprint::apply(intr_b, shape, relief, &brdf, map, pose, img);
+            footprint::apply(intr_b, shape, relief, shading, &brdf, map, pose, img);
         }
         stats.total_pl_image = pl_image.iter().sum();
         t.footprint = ms(t0);

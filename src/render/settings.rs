@@ -91,6 +91,18 @@ pub enum MapFilter {
     /// map over its own footprint on the surface ([`super::footprint`]): the map within the
     /// pixel however many quadrangles the pixel receives.
     Pixel,
+    /// As `Pixel`, and the relief too (an undisplaced DEM): the quadrangles integrate the
+    /// smooth shape, unshadowed, and each pixel's reads carry the DEM's normal and the
+    /// shadows of `self_shadowing` ([`super::footprint`]): the relief's shading within the
+    /// pixel, where the quadrangles' grid spread each one's mean over the pixels it covers.
+    Relief,
+}
+
+impl MapFilter {
+    /// Whether each pixel reads the map over its own footprint (`Pixel` and `Relief`).
+    pub fn per_pixel(self) -> bool {
+        matches!(self, MapFilter::Pixel | MapFilter::Relief)
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]

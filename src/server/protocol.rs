@@ -192,7 +192,8 @@ pub struct AckFidelity {
     pub predicted_total: f64,
     pub meets_budget: bool,
     /// How the albedo map was read: 0 per quadrangle's point, 1 per quadrangle's area, 2
-    /// over each pixel's footprint.
+    /// over each pixel's footprint, 3 over each pixel's footprint with the relief's shading
+    /// and shadows (`MapFilter::Relief`).
     #[serde(default)]
     pub map_filter: u8,
 }
@@ -216,6 +217,7 @@ impl AckFidelity {
                 crate::render::MapFilter::Point => 0,
                 crate::render::MapFilter::Area => 1,
                 crate::render::MapFilter::Pixel => 2,
+                crate::render::MapFilter::Relief => 3,
             },
         }
     }

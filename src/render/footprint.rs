@@ -591,27 +591,6 @@ impl Step<'_> {
         // What each read stands for [rad of latitude]: at most half a texel (the map itself)
         // but where `MAX_READS` caps the reads (then an area-averaged level).
         let read_rad = (len_s / ns as f64).max(len_t / nt as f64) * band.dlat;
-        if let Some(shading) = self.shading {
-            for r in y0..y1 {
-                let t = (r - y0) as f64 / n;
-                for i in x0..x1 {
-                    if band.pixels.iter().all(|img| img[r * w + i] == 0.0) {
-                        continue;
-                    }
-                    let s = (i - x0) as f64 / n;
-                    band.reads.clear();
-                    for &(a, b) in &band.offsets {
-                        band.reads
-                            .push((lerp(lon, s + a, t + b), lerp(lat, s + a, t + b)));
-                    }
-                    self.relief_pixel(band, shading, read_rad);
-                    for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
-                        img[r * w + i] *= f;
-                    }
-                }
-            }
-            return;
-        }
         // Hapke's ratio: tabulated per block, or for a lone pixel (the limb, the terminator)
         // at its own angles.
         let own = !self.linear && size == 1;
@@ -624,7 +603,7 @@ impl Step<'_> {
             c[0].local
         };
         let tabulated = |(a_lo, a_hi): (f64, f64)| !self.linear && !own && a_hi > a_lo;
-        if band.ranges.iter().any(|&r| tabulated(r)) {
+        if self.shading.is_none() && band.ranges.iter().any(|&r| tabulated(r)) {
             // At the angles of the block's centre, where it is lit and seen (the ratio varies
             // smoothly over the block: the centre's is its mean to second order), else of
             // its most lit and visible corner.
@@ -642,6 +621,18 @@ impl Step<'_> {
                     continue;
                 }
                 let s = (i - x0) as f64 / n;
+                if let Some(shading) = self.shading {
+                    band.reads.clear();
+                    for &(a, b) in &band.offsets {
+                        band.reads
+                            .push((lerp(lon, s + a, t + b), lerp(lat, s + a, t + b)));
+                    }
+                    self.relief_pixel(band, shading, read_rad);
+                    for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
+                        img[r * w + i] *= f;
+                    }
+                    continue;
+                }
                 // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
                 // map at `ns x nt` midpoints of the pixel (at the footprint's level beyond
                 // `MAX_READS`), each read's ratio from the block's table, or a single pixel's

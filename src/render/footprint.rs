@@ -222,16 +222,15 @@ impl Step<'_> {
         let (p, n_shape) = self.shape.surface(up);
         let s = (self.pose.sun_position_m - p).normalize();
         let c = (self.pose.camera_position_m - p).normalize();
-        let (mu0_shape, mu_shape) = (n_shape.dot(s), n_shape.dot(c));
-        let dark = ReliefRead {
-            smooth: 0.0,
-            local: Local::new(n_shape, s, c),
-            k: 0.0,
-        };
-        if mu0_shape <= 0.0 || mu_shape <= 0.0 {
-            return dark;
-        }
         let smooth_local = Local::new(n_shape, s, c);
+        let (mu0_shape, mu_shape) = (smooth_local.mu0, smooth_local.mu);
+        if mu0_shape <= 0.0 || mu_shape <= 0.0 {
+            return ReliefRead {
+                smooth: 0.0,
+                local: smooth_local,
+                k: 0.0,
+            };
+        }
         let smooth = self.brdf_ref.eval(&smooth_local) * mu0_shape;
         let at = relief.at(up, shadows == SelfShadowing::HorizonMap);
         let mut local = Local::new(at.normal, s, c);
@@ -294,6 +293,8 @@ impl Step<'_> {
         (relief, shadows): (&Relief, SelfShadowing),
         read_rad: f64,
     ) -> bool {
+        // Per map: the relief's light in `sums`, the map's `a / s_ref` in `squares` (the
+        // fallback).
         band.sums.iter_mut().for_each(|x| *x = 0.0);
         band.squares.iter_mut().for_each(|x| *x = 0.0);
         let reads = std::mem::take(&mut band.reads);

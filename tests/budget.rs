@@ -235,3 +235,43 @@ fn the_reference_holds_the_light_of_a_sub_pixel_lune() {
     // The step is what holds the light, not the depth.
     assert!(without < -3e-4, "without the corners: {without:.2e}");
 }
+
+/// The planner reads an undisplaced DEM's shading and shadows over each pixel
+/// (`MapFilter::Relief`) where a pixel spans half a texel or more of the finer of the map's
+/// and the DEM's, and leaves nearer frames to the quadrangles (`Pixel`); a displacing DEM,
+/// whose lines of sight meet the displaced ground, never. The Moon of [`spec`] with 1-deg
+/// maps: from 8 radii a pixel is 17.8 km, 0.59 texel; from 3 radii 5.1 km, 0.17.
+#[test]
+fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
+    use optistim::body::maps::{Encoding, Map};
+    use optistim::body::{AlbedoMap, Relief};
+    use optistim::fidelity::budget::{Budget, ErrorModel, Planner};
+    use std::path::Path;
+    let (w, h) = (360usize, 180usize);
+    let map = |name: &str, f: &dyn Fn(usize) -> f64| {
+        let values = (0..w * h).map(f).collect();
+        Map::from_values(Path::new(name), w, h, values, &Encoding::default()).unwrap()
+    };
+    let filter_at = |camera_radii: f64, displaces: bool| {
+        let mut cfg = optistim::config::parse(
+            &SceneSpec {
+                camera_m: [camera_radii * R_MOON, 0.0, 0.0],
+                ..spec("")
+            }
+            .toml(),
+            "t",
+        )
+        .unwrap();
+        let albedo = map("albedo", &|i| 0.1 + 0.02 * ((i % 7) as f64));
+        let scale = cfg.scene.body.brdf.scale() / 0.12;
+        cfg.scene.body.albedo_map = Some(AlbedoMap::new(albedo, scale));
+        let dem = map("dem", &|i| 2000.0 * ((i % 5) as f64 - 2.0));
+        cfg.scene.body.relief = Some(Relief::new(dem, R_MOON, displaces).unwrap());
+        let model = ErrorModel::shipped().unwrap();
+        let planner = Planner::new(&cfg.scene, &cfg.settings, Budget::default(), model);
+        planner.plan(&cfg.scene, &cfg.pose).map_filter
+    };
+    assert_eq!(filter_at(8.0, false), MapFilter::Relief);
+    assert_eq!(filter_at(3.0, false), MapFilter::Pixel);
+    assert_eq!(filter_at(8.0, true), MapFilter::Pixel);
+}

@@ -853,20 +853,30 @@ pub struct Planner {
     base: Settings,
     probe: FrameProbe,
     has_horizon: bool,
-    /// The DEM's texel over the albedo map's, where the relief's shading may be read over
-    /// each pixel's footprint with the map ([`MapFilter::Relief`]: an undisplaced DEM and an
-    /// albedo map); `None` elsewhere.
-    relief_over_map_texels: Option<f64>,
+    /// The finer of the DEM's and the albedo map's texels over the map's, where the relief's
+    /// shading may be read over each pixel's footprint with the map ([`MapFilter::Relief`]:
+    /// an undisplaced DEM and an albedo map); `None` elsewhere.
+    finest_over_map_texels: Option<f64>,
 }
 
-/// The footprint, in DEM texels, from which the planner reads the relief over each pixel
-/// ([`MapFilter::Relief`]): a pixel over a texel or more, where the quadrangles' grid spreads
-/// the relief's shading over pixels that see different slopes (measured at the NRHO's
-/// apolune, 2.4 texels a pixel). Each read casts its own shadow rays, so the step costs
-/// about a microsecond a read: below a texel a pixel, the disk has more pixels (a million at
-/// perilune) and the quadrangles resolve the shading better; between a quarter texel and one
-/// (2.4 s a frame at 20,000 km, against 0.8 s for the quadrangles) its error is not measured.
-const RELIEF_FOOTPRINT_TEXELS: f64 = 1.0;
+/// The footprint, in the finer of the map's and the DEM's texels, from which the planner
+/// reads the relief over each pixel ([`MapFilter::Relief`]): the footprint step then reads a
+/// pixel at 2 x 2 points or more (half a texel apart). On `config/nrho_textured.toml` (the
+/// centres of NRHO frames at their own pixel scale, 256 x 256 at apolune and 128 x 128 else,
+/// against the reference; the quadrangles at the rung the planner took before):
+///
+/// | frame | footprint | quadrangles: median / p99 / total | relief |
+/// | --- | --- | --- | --- |
+/// | apolune, 71,222 km | 3.4 texels | 1.0e-2 / 0.47 / 4.6e-5 (2 per px) | 8.3e-4 / 0.12 / 4.8e-5 |
+/// | 31,444 km | 1.0 | 2.2e-2 / 0.44 / 5.2e-4 (1/4) | 9.3e-4 / 2.6e-2 / 1.5e-5 (1/16) |
+/// | 19,661 km | 0.62 | 1.6e-2 / 0.16 / 4.2e-4 (1/16) | 5.1e-4 / 6.3e-3 / 3.4e-6 (1/16) |
+/// | 9,876 km, 125 deg | 0.28 | 2.9e-3 / 0.80 / 5.2e-5 (2) | 2.0e-3 / 1.0 / 1.2e-3 (1/4) |
+///
+/// With one read a pixel (the last row) a pixel whose read is in shadow is dark however much
+/// of it is lit: 433 of its 11,385 lit pixels. Below this footprint the quadrangles resolve
+/// the relief's shading better, and each pixel's own shadow rays would cost more than theirs
+/// (a million lit pixels at perilune).
+const RELIEF_FOOTPRINT_TEXELS: f64 = 0.5;
 
 impl Planner {
     /// `base`: the scene's own `[render]` settings, whose other knobs (threads, depth,
@@ -878,9 +888,9 @@ impl Planner {
             base: base.clone(),
             probe: FrameProbe::new(scene),
             has_horizon: scene.body.relief.as_ref().is_some_and(|r| r.has_horizon()),
-            relief_over_map_texels: match (&scene.body.relief, &scene.body.albedo_map) {
+            finest_over_map_texels: match (&scene.body.relief, &scene.body.albedo_map) {
                 (Some(r), Some(a)) if !r.displaces() => {
-                    Some(r.heights_m.spacing_rad().1 / a.map.spacing_rad().1)
+                    Some((r.heights_m.spacing_rad().1 / a.map.spacing_rad().1).min(1.0))
                 }
                 _ => None,
             },
@@ -985,8 +995,8 @@ impl Planner {
     /// 7.4e-5 (`docs/performance.md`, "A crescent thinner than a pixel").
     ///
     /// With an undisplaced DEM, where a pixel's footprint spans at least
-    /// [`RELIEF_FOOTPRINT_TEXELS`] of its texels, the relief's shading and shadows are read
-    /// over each pixel too ([`MapFilter::Relief`]): the quadrangles, which spread a
+    /// [`RELIEF_FOOTPRINT_TEXELS`] of the finer texels, the relief's shading and shadows are
+    /// read over each pixel too ([`MapFilter::Relief`]): the quadrangles, which spread a
     /// quadrangle's light over the pixels it covers, left the LOLA Moon at the NRHO's apolune
     /// (2.4 DEM texels a pixel) at median 1.0e-2 and 2.6e-3 with 2 and 16 quadrangles per
     /// pixel; read over each pixel, 8.3e-4 at 1 (`docs/performance.md`, "The relief over
@@ -995,7 +1005,7 @@ impl Planner {
         if f.lit_px > 0.0 && f.lit_px < f.edge_px {
             MapFilter::Area
         } else if self
-            .relief_over_map_texels
+            .finest_over_map_texels
             .is_some_and(|k| f.footprint_texels >= RELIEF_FOOTPRINT_TEXELS * k)
         {
             MapFilter::Relief

@@ -520,7 +520,7 @@ pub fn integrate(
                         let n_body = view.body_dir(trig.mid_dir(i, k));
                         let scale = match map_filter {
                             MapFilter::Point => a.scale_at(n_body, brdf.scale()),
-                            // (Under `Pixel` the renderer passes no map here.)
+                            // (Under `Pixel` and `Relief` the renderer passes no map here.)
                             MapFilter::Area | MapFilter::Pixel | MapFilter::Relief => {
                                 let side = ((trig.lon[i + 1] - trig.lon[i]) * area_lat).sqrt();
                                 a.scale_over(n_body, side, brdf.scale())

@@ -314,22 +314,38 @@ fn view_through<'a>(
     pose: &Pose,
     settings: &Settings,
 ) -> View<'a> {
-    // Under `MapFilter::Relief` the quadrangles integrate the smooth shape: the relief comes
-    // in per pixel ([`footprint`]).
-    let relief_per_pixel = settings.map_filter == MapFilter::Relief;
+    let (relief, shadows, _) = relief_roles(scene, settings);
     View::new(
         intr,
         &scene.body.shape,
-        scene.body.relief.as_ref().filter(|_| !relief_per_pixel),
-        if relief_per_pixel {
-            SelfShadowing::Off
-        } else {
-            settings.self_shadowing
-        },
+        relief,
+        shadows,
         pose,
         settings.supersampling,
         settings.fov,
     )
+}
+
+/// How the frame's relief is shared between the quadrangles and the footprint step: the
+/// relief the quadrangles (and the footprint's lines of sight) see and how it shadows them,
+/// and the relief whose shading and shadows the footprint's reads carry. Under
+/// `MapFilter::Relief` the quadrangles integrate the smooth shape, unshadowed, and the reads
+/// carry the relief with the frame's `self_shadowing`; otherwise the quadrangles carry it.
+#[allow(clippy::type_complexity)]
+fn relief_roles<'a>(
+    scene: &'a Scene,
+    settings: &Settings,
+) -> (
+    Option<&'a crate::body::Relief>,
+    SelfShadowing,
+    Option<(&'a crate::body::Relief, SelfShadowing)>,
+) {
+    match scene.body.relief.as_ref() {
+        Some(r) if settings.map_filter == MapFilter::Relief => {
+            (None, SelfShadowing::Off, Some((r, settings.self_shadowing)))
+        }
+        r => (r, settings.self_shadowing, None),
+    }
 }
 
 pub(crate) fn check_pose(scene: &Scene, pose: &Pose) -> Result<(), RenderError> {
@@ -589,10 +605,7 @@ fn render_in_pool(
     stats.total_pl_image = stats.total_pl_gridded;
     if let Some(a) = pixel_map {
         let t0 = Instant::now();
-        let (relief, shading) = match scene.body.relief.as_ref() {
-            Some(r) if relief_per_pixel => (None, Some((r, settings.self_shadowing))),
-            r => (r, None),
-        };
+        let (relief, _, shading) = relief_roles(scene, settings);
         let shape = &scene.body.shape;
         // A band with a map of its own but the camera's distortion: the gridded geometry,
         // before the camera's map comes in.

@@ -790,7 +790,8 @@ fn the_relief_over_each_pixel_footprint_matches_the_reference() {
 /// `map_filter = "relief"` reads an albedo map and an undisplaced relief over each pixel: a
 /// body without a map, or a DEM that displaces the surface (whose lines of sight meet the
 /// displaced ground, which the smooth shape's quadrangles do not hold), is refused with an
-/// error naming the setting, not rendered wrong.
+/// error naming the setting, not rendered wrong: by the scene file as it loads, and by the
+/// renderer for settings that reach it otherwise (a plan, a library caller).
 #[test]
 fn the_relief_per_pixel_is_refused_where_it_does_not_apply() {
     let refused = |cfg: &optistim::config::Config| {
@@ -808,10 +809,51 @@ fn the_relief_per_pixel_is_refused_where_it_does_not_apply() {
         render: "map_filter = \"relief\"",
         ..Default::default()
     };
-    refused(&spec.config());
-    let mut displaced = with_fine_map(spec.config());
+    // No albedo map: the file is refused at load.
+    assert_eq!(
+        refusal(&spec.toml(), "<test>"),
+        ("render.map_filter".to_string(), "\"relief\"".to_string())
+    );
+    let relief_settings = |mut cfg: optistim::config::Config| {
+        cfg.settings.map_filter = optistim::render::MapFilter::Relief;
+        cfg
+    };
+    let plain = SceneSpec { render: "", ..spec };
+    refused(&relief_settings(plain.config()));
+    let mut displaced = relief_settings(with_fine_map(plain.config()));
     let dem = Map::from_values(Path::new("flat"), 8, 4, vec![0.0; 32], &Encoding::default());
     displaced.scene.body.relief =
         Some(optistim::body::Relief::new(dem.unwrap(), R_MOON, true).unwrap());
     refused(&displaced);
+    // The same body, its relief undisplaced, renders.
+    let mut undisplaced = displaced;
+    let dem = Map::from_values(Path::new("flat"), 8, 4, vec![0.0; 32], &Encoding::default());
+    undisplaced.scene.body.relief =
+        Some(optistim::body::Relief::new(dem.unwrap(), R_MOON, false).unwrap());
+    let mut renderer = Renderer::new(0).unwrap();
+    renderer
+        .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)
+        .unwrap();
+    // Its quadrangles integrate the smooth shape, so the Lambert sphere's closed form
+    // (`integration = "exact"`) applies under `relief`, and not under `pixel`, whose
+    // quadrangles carry the DEM's normals. On a flat DEM it is the frame without one.
+    undisplaced.settings.integration = optistim::render::Integration::Exact;
+    let flat = renderer
+        .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)
+        .unwrap();
+    let mut without = undisplaced.clone();
+    without.scene.body.relief = None;
+    without.settings.map_filter = optistim::render::MapFilter::Pixel;
+    let smooth = renderer
+        .render(&without.scene, &without.pose, &without.settings)
+        .unwrap();
+    let (a, b) = (flat.pl.iter().sum::<f64>(), smooth.pl.iter().sum::<f64>());
+    assert!(b > 0.0 && ((a - b) / b).abs() < 1e-6, "{a} {b}");
+    undisplaced.settings.map_filter = optistim::render::MapFilter::Pixel;
+    let e = renderer
+        .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(e.contains("exact") && e.contains("DEM"), "{e}");
 }

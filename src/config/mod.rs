@@ -270,11 +270,11 @@ impl Validator<'_> {
         }
         let pose = self.pose(&raw.pose, sun_position_m, &body)?;
         let settings = self.render(&raw.render, &body)?;
-        if !body.band_maps.is_empty() && !settings.map_filter.per_pixel() {
+        if let Some(allowed) = settings.map_filter.refusal(&body) {
             return self.err(
                 "render.map_filter",
                 format!("{:?}", settings.map_filter).to_lowercase(),
-                "\"pixel\" with body.band_map: each band's map is read over each pixel's footprint",
+                allowed,
             );
         }
         let stimulator = match &raw.stimulator {
@@ -1538,11 +1538,6 @@ impl Validator<'_> {
                 ("pointwise", Integration::Pointwise),
             ],
         )?;
-        if s.integration == Integration::Exact
-            && let Err(e) = Method::resolve(Integration::Exact, body)
-        {
-            return self.err("render.integration", "exact", &e.to_string());
-        }
         if let Some(v) = &r.fov {
             s.fov = match self.choice("render.fov", v, &["frustum", "cone"])? {
                 "cone" => FovShape::Cone,
@@ -1698,6 +1693,13 @@ impl Validator<'_> {
                     ("relief", MapFilter::Relief),
                 ],
             )?;
+        }
+        // Under `map_filter = "relief"` the quadrangles integrate the smooth shape.
+        let relief_on_quadrangles = s.map_filter != crate::render::MapFilter::Relief;
+        if s.integration == Integration::Exact
+            && let Err(e) = Method::resolve(Integration::Exact, body, relief_on_quadrangles)
+        {
+            return self.err("render.integration", "exact", &e.to_string());
         }
         Ok(s)
     }

@@ -87,9 +87,31 @@ pub struct Features {
     /// leaves a floor of about 1e-4 to 7e-4 at the median, 0 on a Lambertian body), else 0.
     #[serde(default)]
     pub nonlinear_albedo: f64,
+    /// The DEM's share of [`Features::texture`]: its shading's change between neighbouring
+    /// pixels (0 without a DEM). Where the relief is read over each pixel's footprint
+    /// ([`MapFilter::Relief`]) it is read as the albedo map is, and the model sees only the
+    /// rest ([`Features::modelled`]).
+    #[serde(default)]
+    pub relief_texture: f64,
 }
 
 impl Features {
+    /// The features the error model reads for a frame rendered with `map_filter`: under
+    /// [`MapFilter::Relief`] the footprint step reads the DEM's shading over each pixel as it
+    /// reads the albedo map under [`MapFilter::Pixel`], so the relief's texture leaves
+    /// [`Features::texture`] and the map's alone is left, as on the frames of a body without
+    /// a DEM the model was fitted on (whose map was read over each pixel).
+    pub fn modelled(&self, map_filter: MapFilter) -> Features {
+        match map_filter {
+            MapFilter::Relief => Features {
+                texture: (self.texture - self.relief_texture).max(0.0),
+                relief_texture: 0.0,
+                ..*self
+            },
+            _ => *self,
+        }
+    }
+
     /// The share of lit pixels on the limb or the terminator.
     pub fn edge_share(&self) -> f64 {
         if self.lit_px > 0.0 {
@@ -712,6 +734,7 @@ impl FrameProbe {
         // A pixel's footprint at the nearest surface point [m].
         let footprint_m = (range_m - radius_m).max(0.0) / f_px;
         let mut texture = 0.0;
+        let mut relief_texture = 0.0;
         let mut footprint_texels = 0.0;
         if let Some((texel_m, contrast)) = &self.albedo {
             footprint_texels = footprint_m / texel_m;
@@ -727,7 +750,8 @@ impl FrameProbe {
                 change / fp.sqrt()
             };
             let incidence = (0.5 * phase_deg).min(80.0).to_radians();
-            texture += per_px * (1.0 + incidence.tan());
+            relief_texture = per_px * (1.0 + incidence.tan());
+            texture += relief_texture;
         }
         Features {
             radius_px: (radius_m / range_m).min(1.0).asin() * f_px,
@@ -739,6 +763,7 @@ impl FrameProbe {
             texture,
             shadow_share: if lit_px > 0.0 { low_px / lit_px } else { 0.0 },
             nonlinear_albedo: self.nonlinear_albedo,
+            relief_texture,
         }
     }
 }
@@ -1024,11 +1049,13 @@ impl Planner {
             return self.ray_cast_plan(features, clip);
         }
         let shadows = self.shadowing(&features);
+        let map_filter = self.map_filter(&features);
+        let modelled = features.modelled(map_filter);
         let b = self.budget;
         let fits = |p: &Predicted| p.median <= b.median && p.p99 <= b.p99 && p.total <= b.total;
         let predicted: Vec<(f64, Predicted)> = LADDER
             .iter()
-            .map(|&ppp| (ppp, self.model.predict(ppp, &features)))
+            .map(|&ppp| (ppp, self.model.predict(ppp, &modelled)))
             .collect();
         // A figure no rung is predicted to meet (a textured frame's median, which more
         // quadrangles do not lower) does not hold back the others: a rung is then taken when
@@ -1064,7 +1091,7 @@ impl Planner {
         };
         let settings = Settings {
             self_shadowing: shadows,
-            map_filter: self.map_filter(&features),
+            map_filter,
             ..Planner::rung(&self.base, ppp)
         };
         Plan {
@@ -1187,6 +1214,26 @@ mod tests {
         // The shipped model parses and round-trips.
         let shipped = ErrorModel::shipped().unwrap();
         assert_eq!(ErrorModel::parse(&shipped.to_toml(), "x").unwrap(), shipped);
+    }
+
+    /// Under `MapFilter::Relief` the model reads the map's texture alone (the relief is read
+    /// over each pixel as the map is); under the other filters the frame's whole texture.
+    #[test]
+    fn the_relief_read_over_each_pixel_leaves_the_models_texture() {
+        let f = Features {
+            texture: 0.12,
+            relief_texture: 0.1,
+            lit_px: 1000.0,
+            ..Default::default()
+        };
+        let under = |m| f.modelled(m).texture;
+        assert!((under(MapFilter::Relief) - 0.02).abs() < 1e-12);
+        for m in [MapFilter::Pixel, MapFilter::Area, MapFilter::Point] {
+            assert_eq!(under(m), 0.12);
+        }
+        let model = ErrorModel::shipped().unwrap();
+        let p = |m| model.predict(1.0, &f.modelled(m)).median;
+        assert!(p(MapFilter::Relief) < p(MapFilter::Pixel));
     }
 
     #[test]

@@ -170,10 +170,17 @@ pub struct NoClosedForm {
 }
 
 impl Method {
-    /// The integration method for `body`. The closed forms need the BRDF to have one and the
-    /// normals to be the shape's own (no DEM tilting them).
-    pub fn resolve(integration: Integration, body: &Body) -> Result<Method, NoClosedForm> {
-        let form = match (&body.relief, body.brdf.exact_form()) {
+    /// The integration method for `body`, whose DEM the quadrangles carry where
+    /// `relief_on_quadrangles` (not under `MapFilter::Relief`, where the footprint step reads
+    /// it and the quadrangles integrate the smooth shape). The closed forms need the BRDF to
+    /// have one and the normals to be the shape's own (no DEM tilting them).
+    pub fn resolve(
+        integration: Integration,
+        body: &Body,
+        relief_on_quadrangles: bool,
+    ) -> Result<Method, NoClosedForm> {
+        let relief = body.relief.as_ref().filter(|_| relief_on_quadrangles);
+        let form = match (relief, body.brdf.exact_form()) {
             _ if !body.shape.is_round() => Err(NoClosedForm {
                 reason: "on a non-spherical shape (the closed forms are the sphere's)".into(),
             }),

@@ -253,7 +253,8 @@ impl Renderer {
                 Ok(frame)
             });
         }
-        let method = Method::resolve(settings.integration, &scene.body)?;
+        let (quad_relief, _, _) = relief_roles(scene, settings);
+        let method = Method::resolve(settings.integration, &scene.body, quad_relief.is_some())?;
         let threads = self.threads;
         let buf = &mut self.buf;
         self.pool
@@ -483,31 +484,12 @@ fn render_in_pool(
     };
     let mut t = StageTimings::default();
     // Under `MapFilter::Pixel` the quadrangles see the map's mean and the footprint step
-    // brings the map in per pixel.
-    if !scene.body.band_maps.is_empty() && !settings.map_filter.per_pixel() {
+    // brings the map in per pixel; under `Relief` the DEM's shading too.
+    if let Some(allowed) = settings.map_filter.refusal(&scene.body) {
         return Err(RenderError::BadSettings {
             field: "map_filter",
             value: format!("{:?}", settings.map_filter).to_lowercase(),
-            allowed: "\"pixel\" for a body with maps of its own per band (body.band_map): \
-                      they are read over each pixel's footprint",
-        });
-    }
-    let relief_per_pixel = settings.map_filter == MapFilter::Relief;
-    if relief_per_pixel && scene.body.albedo_map.is_none() {
-        return Err(RenderError::BadSettings {
-            field: "map_filter",
-            value: "relief".into(),
-            allowed: "\"relief\" for a body with an albedo map (body.albedo_map), whose reads \
-                      over each pixel carry the relief",
-        });
-    }
-    if relief_per_pixel && scene.body.relief.as_ref().is_some_and(|r| r.displaces()) {
-        return Err(RenderError::BadSettings {
-            field: "map_filter",
-            value: "relief".into(),
-            allowed: "\"pixel\" or \"area\" for a displaced DEM (body.dem_map with displace): \
-                      \"relief\" reads the shading of a relief that leaves the shape's surface \
-                      where it is",
+            allowed,
         });
     }
     let (brdf, quad_albedo, pixel_map) = match (&scene.body.albedo_map, settings.map_filter) {

@@ -103,6 +103,34 @@ impl MapFilter {
     pub fn per_pixel(self) -> bool {
         matches!(self, MapFilter::Pixel | MapFilter::Relief)
     }
+
+    /// Why this filter cannot read `body`'s maps (the filters that can, as the typed errors
+    /// of the config and the renderer name them), or `None` where it can.
+    pub fn refusal(self, body: &crate::body::Body) -> Option<&'static str> {
+        if !body.band_maps.is_empty() && !self.per_pixel() {
+            return Some(
+                "\"pixel\" or \"relief\" for a body with maps of its own per band \
+                 (body.band_map): they are read over each pixel's footprint",
+            );
+        }
+        if self != MapFilter::Relief {
+            return None;
+        }
+        if body.albedo_map.is_none() {
+            return Some(
+                "\"relief\" only for a body with an albedo map (body.albedo_map), whose reads \
+                 over each pixel carry the relief",
+            );
+        }
+        if body.relief.as_ref().is_some_and(|r| r.displaces()) {
+            return Some(
+                "\"pixel\" or \"area\" for a displaced DEM (body.dem_map with displace): \
+                 \"relief\" reads the shading of a relief that leaves the shape's surface \
+                 where it is",
+            );
+        }
+        None
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]

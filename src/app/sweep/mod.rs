@@ -136,6 +136,9 @@ pub struct Row {
     /// 0 in the CSVs written before the feature existed, whose bodies are all Lambertian.
     #[serde(default)]
     pub f_nonlinear_albedo: f64,
+    /// 0 in the CSVs written before the feature existed.
+    #[serde(default)]
+    pub f_relief_texture: f64,
 }
 
 impl Row {
@@ -151,6 +154,7 @@ impl Row {
             texture: self.f_texture,
             shadow_share: self.f_shadow_share,
             nonlinear_albedo: self.f_nonlinear_albedo,
+            relief_texture: self.f_relief_texture,
         }
     }
 }
@@ -552,6 +556,7 @@ pub fn run(
                 f_texture: features.texture,
                 f_shadow_share: features.shadow_share,
                 f_nonlinear_albedo: features.nonlinear_albedo,
+                f_relief_texture: features.relief_texture,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,

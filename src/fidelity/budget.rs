@@ -267,7 +267,25 @@ pub struct Plan {
 impl Plan {
     /// A ray-cast frame's own estimate of its error becomes its prediction, and whether it
     /// meets the budget is read from it (a quadrangle frame's plan is left as it is).
+    ///
+    /// A frame that read the relief over each pixel ([`MapFilter::Relief`]) knows how well
+    /// its reads sampled the shadows' edges and the shading ([`FrameStats::relief_read_p99`],
+    /// from each pixel's reads against a quarter of them): its predicted p99 is that where it
+    /// is the larger (the model, fitted on frames whose pixels were not read so, sees
+    /// neither), and whether it meets the budget is judged again.
+    ///
+    /// [`FrameStats::relief_read_p99`]: crate::render::FrameStats::relief_read_p99
     pub fn observe(&mut self, stats: &crate::render::FrameStats) {
+        if let Some(p99) = stats
+            .relief_read_p99
+            .filter(|_| self.map_filter == MapFilter::Relief)
+        {
+            if p99 > self.predicted.p99 {
+                self.predicted.p99 = p99;
+                self.meets_budget &= p99 <= self.budget.p99;
+            }
+            return;
+        }
         if self.raycast_edge_samples == 0 && !self.raycast_clip {
             return;
         }
@@ -1234,6 +1252,41 @@ mod tests {
         let model = ErrorModel::shipped().unwrap();
         let p = |m| model.predict(1.0, &f.modelled(m)).median;
         assert!(p(MapFilter::Relief) < p(MapFilter::Pixel));
+    }
+
+    /// A relief frame's own estimate of its reads' p99 raises its prediction where it is the
+    /// larger, and judges the budget again; it never lowers the model's.
+    #[test]
+    fn a_relief_frame_takes_its_reads_estimate_of_the_p99() {
+        let plan = |map_filter| Plan {
+            points_per_pixel: 1.0,
+            raycast_edge_samples: 0,
+            raycast_clip: false,
+            boundary_nodes: 4,
+            self_shadowing: SelfShadowing::RayMarching,
+            map_filter,
+            predicted: Predicted {
+                median: 5e-4,
+                p99: 1e-2,
+                total: 1e-5,
+            },
+            meets_budget: true,
+            budget: Budget::default(),
+            features: Features::default(),
+            settings: Settings::default(),
+        };
+        let observed = |map_filter, p99: f64| {
+            let mut p = plan(map_filter);
+            p.observe(&crate::render::FrameStats {
+                relief_read_p99: Some(p99),
+                ..Default::default()
+            });
+            (p.predicted.p99, p.meets_budget)
+        };
+        assert_eq!(observed(MapFilter::Relief, 0.2), (0.2, false));
+        assert_eq!(observed(MapFilter::Relief, 2e-2), (2e-2, true));
+        assert_eq!(observed(MapFilter::Relief, 1e-3), (1e-2, true));
+        assert_eq!(observed(MapFilter::Pixel, 0.2), (1e-2, true));
     }
 
     #[test]

@@ -117,6 +117,27 @@ const GRAZING: f64 = 1e-3;
 
 /// Nodes of the per-block table of Hapke's ratio over the map's range of `w`.
 const TABLE: usize = 9;
+/// [`relief_estimate`]'s scale: the full reads' own error from their difference to the
+/// coarse quarter of them, as for a rule of the second order in the reads' spacing
+/// (Richardson: `(fine - coarse) / (2^2 - 1)`). The 99th percentile of the estimate over
+/// the lit pixels against the one measured against the reference, on the centres of
+/// `config/nrho_textured.toml`'s NRHO frames at their own pixel scale (ray marching):
+///
+/// | frame | reads a pixel | estimated p99 | measured p99 |
+/// | --- | --- | --- | --- |
+/// | apolune, 71,222 km, 256 x 256 | 7 x 7 | 0.196 | 0.116-0.130 |
+/// | row 0, 71,222 km, 128 x 128 | 7 x 7 | 0.33 | 0.235 |
+/// | row 232, 31,444 km, 128 x 128 | 3 x 3 | 2.7e-2 | 2.6e-2 |
+/// | row 493, 19,661 km, 128 x 128 | 2 x 2 | 2.4e-2 | 6.3e-3 |
+///
+/// It is at or above the measured p99 on each (1.0 to 3.8 times it), which is what a frame's
+/// report of its error needs. It sees the reads' error only: on a frame whose p99 is the
+/// limb's and the terminator's (`tests/maps.rs`, hills under a 64 x 64 frame) it is half the
+/// measured p99, and the planner's prediction is the larger of it and the model's. The shadows' edges, where a read is lit or not, converge more
+/// slowly than a smooth integrand (their error would ask for about 0.55); the difference
+/// between the full and the coarse reads at the 99th percentile is nevertheless 3 to 11
+/// times the error measured there.
+const READ_ESTIMATE_SCALE: f64 = 1.0 / 3.0;
 
 /// The BRDF scale the geometry is integrated with under `MapFilter::Pixel`: the map's mean
 /// (so that Hapke's ratio stays near its value), or `fallback` where that is not positive.
@@ -287,19 +308,27 @@ impl Step<'_> {
     /// centre first and giving the other reads their answer where those agreed made the
     /// step 1.5 times faster on the NRHO's apolune frame (49 reads a pixel), but lost the
     /// shadows smaller than a pixel between them: total 1.9e-4 against 7.3e-5.
+    ///
+    /// `grid`: the reads' `(columns, rows)` where they lie on a grid over the pixel, row by
+    /// row; then the pixel's factor is also taken from every other read of every other row
+    /// (a quarter of them), and the relative difference between the two is returned as the
+    /// reads' own error estimate (see [`relief_estimate`]); else 0.
     fn relief_pixel(
         &self,
         band: &mut Band,
         (relief, shadows): (&Relief, SelfShadowing),
         read_rad: f64,
-    ) -> bool {
+        grid: Option<(usize, usize)>,
+    ) -> (bool, f64) {
         // Per map: the relief's light in `sums`, the map's `a / s_ref` in `squares` (the
         // fallback).
         band.sums.iter_mut().for_each(|x| *x = 0.0);
         band.squares.iter_mut().for_each(|x| *x = 0.0);
         let reads = std::mem::take(&mut band.reads);
         let mut smooth = 0.0;
-        for &(lon, lat) in &reads {
+        // The first map's light and the smooth shape's over the coarser grid.
+        let (mut coarse_light, mut coarse_smooth) = (0.0, 0.0);
+        for (j, &(lon, lat)) in reads.iter().enumerate() {
             let read = self.relief_read(relief, shadows, (lon, lat));
             smooth += read.smooth;
             let f_ref = if read.k > 0.0 && self.linear {
@@ -307,10 +336,16 @@ impl Step<'_> {
             } else {
                 0.0
             };
+            let coarse = grid.is_some_and(|(ns, _)| (j % ns) % 2 == 0 && (j / ns) % 2 == 0);
             for (m, map) in self.maps.iter().enumerate() {
                 let a = map.scale_over_lon_lat(lon, lat, read_rad, self.s_ref);
-                band.sums[m] += self.relief_light(&read, a, f_ref);
+                let light = self.relief_light(&read, a, f_ref);
+                band.sums[m] += light;
                 band.squares[m] += a / self.s_ref;
+                if m == 0 && coarse {
+                    coarse_light += light;
+                    coarse_smooth += read.smooth;
+                }
             }
         }
         let count = reads.len() as f64;
@@ -321,8 +356,19 @@ impl Step<'_> {
                 band.squares[m] / count.max(1.0)
             };
         }
+        let estimate = match (grid, band.sums.first()) {
+            (Some(_), Some(&fine)) if smooth > 0.0 => {
+                let coarse = if coarse_smooth > 0.0 {
+                    coarse_light / coarse_smooth
+                } else {
+                    0.0
+                };
+                relief_estimate(fine, coarse)
+            }
+            _ => 0.0,
+        };
         band.reads = reads;
-        count > 0.0
+        (count > 0.0, estimate)
     }
 
     /// `f_r(a) / f_r(s_ref)` at `local`'s angles (`a / s_ref` for the linear models, and where
@@ -374,7 +420,10 @@ impl Step<'_> {
                     band.reads.push((p.lon, p.lat));
                 }
             }
-            if self.relief_pixel(band, shading, read_rad.unwrap_or(0.0)) {
+            if self
+                .relief_pixel(band, shading, read_rad.unwrap_or(0.0), None)
+                .0
+            {
                 for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
                     img[r * w + i] *= f;
                 }
@@ -487,6 +536,9 @@ struct Band<'a> {
     squares: Vec<f64>,
     /// A pixel's reads under `MapFilter::Relief` (map coordinates [rad]).
     reads: Vec<(f64, f64)>,
+    /// Under `MapFilter::Relief`: the band's rows of the reads' own error estimate per pixel
+    /// ([`Step::relief_pixel`]); empty otherwise.
+    estimate: &'a mut [f64],
 }
 
 impl Step<'_> {
@@ -628,10 +680,11 @@ impl Step<'_> {
                         band.reads
                             .push((lerp(lon, s + a, t + b), lerp(lat, s + a, t + b)));
                     }
-                    self.relief_pixel(band, shading, read_rad);
+                    let (_, estimate) = self.relief_pixel(band, shading, read_rad, Some((ns, nt)));
                     for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
                         img[r * w + i] *= f;
                     }
+                    band.estimate[r * w + i] = estimate;
                     continue;
                 }
                 // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
@@ -704,6 +757,21 @@ fn quadratic(table: &[f64; TABLE], x: f64) -> f64 {
     b + 0.5 * f * (c - a) + 0.5 * f * f * (c - 2.0 * b + a)
 }
 
+/// The reads' own estimate of a pixel's relative error under `MapFilter::Relief`, from its
+/// factor over all its reads (`fine`) and over a quarter of them on a grid twice as coarse
+/// (`coarse`): `READ_ESTIMATE_SCALE |fine - coarse| / fine`; where no read is lit but some
+/// of the coarse grid's would be, 1.
+#[inline]
+fn relief_estimate(fine: f64, coarse: f64) -> f64 {
+    if fine > 0.0 {
+        READ_ESTIMATE_SCALE * (fine - coarse).abs() / fine
+    } else if coarse > 0.0 {
+        1.0
+    } else {
+        0.0
+    }
+}
+
 /// Bilinear interpolation of the corners' `q` (top-left, top-right, bottom-left,
 /// bottom-right) at `(s, t)` in [0, 1]^2.
 #[inline(always)]
@@ -723,7 +791,7 @@ pub fn apply(
     albedo: &AlbedoMap,
     pose: &Pose,
     image: &mut [f64],
-) {
+) -> Option<Vec<f64>> {
     let mut layers = [(albedo, image)];
     apply_maps(
         intrinsics,
@@ -733,7 +801,7 @@ pub fn apply(
         brdf_ref,
         pose,
         &mut layers,
-    );
+    )
 }
 
 /// [`apply`] with several maps, each scaling its own image of the same geometry (the
@@ -741,7 +809,9 @@ pub fn apply(
 ///
 /// `relief`: the relief the lines of sight meet and whose normals Hapke's ratio is taken
 /// at; `shading` (`MapFilter::Relief`, with `relief` then `None`): the relief whose shading
-/// and shadows the reads carry, the quadrangles having integrated the smooth shape.
+/// and shadows the reads carry, the quadrangles having integrated the smooth shape. Under
+/// `shading` it returns the reads' own relative error estimate per pixel of the first
+/// layer ([`relief_estimate`]; 0 where a pixel was not read on a grid); else `None`.
 pub fn apply_maps(
     intrinsics: &Intrinsics,
     shape: &Shape,
@@ -750,11 +820,11 @@ pub fn apply_maps(
     brdf_ref: &Brdf,
     pose: &Pose,
     layers: &mut [(&AlbedoMap, &mut [f64])],
-) {
+) -> Option<Vec<f64>> {
     let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
     let s_ref = brdf_ref.scale();
     if w == 0 || h == 0 || s_ref <= 0.0 || layers.is_empty() {
-        return;
+        return None;
     }
     let (fx, fy) = intrinsics.focal_px();
     let maps: Vec<&AlbedoMap> = layers.iter().map(|(m, _)| *m).collect();
@@ -793,34 +863,43 @@ pub fn apply_maps(
             bands[k].push(rows);
         }
     }
-    bands.into_par_iter().enumerate().for_each(|(by, pixels)| {
-        let y0 = by * BLOCK;
-        let fy = y0 as f64 + 0.5;
-        // The corners' lines of sight, above and below the band.
-        let corners: Vec<[Probe; 2]> = (0..=bw)
-            .map(|bx| {
-                let x = (bx * BLOCK) as f64 + 0.5;
-                [step.probe(x, fy), step.probe(x, fy + BLOCK as f64)]
-            })
-            .collect();
-        let mut band = Band {
-            rows: pixels[0].len() / w,
-            tables: vec![[0.0; TABLE]; pixels.len()],
-            sums: vec![0.0; pixels.len()],
-            squares: vec![0.0; pixels.len()],
-            pixels,
-            width: w,
-            y0,
-            dlon,
-            dlat,
-            ranges: ranges.clone(),
-            offsets: Vec::with_capacity(MAX_READS * MAX_READS),
-            reads: Vec::with_capacity(CAST * CAST),
-        };
-        for bx in 0..bw {
-            let [c00, c01] = corners[bx];
-            let [c10, c11] = corners[bx + 1];
-            step.block(&mut band, bx * BLOCK, 0, BLOCK, [c00, c10, c01, c11]);
-        }
-    });
+    let mut estimate = vec![0.0; if shading.is_some() { w * h } else { 0 }];
+    let mut estimate_bands: Vec<&mut [f64]> = estimate.chunks_mut(w * BLOCK).collect();
+    estimate_bands.resize_with(bands.len(), Default::default);
+    bands
+        .into_par_iter()
+        .zip(estimate_bands)
+        .enumerate()
+        .for_each(|(by, (pixels, estimate))| {
+            let y0 = by * BLOCK;
+            let fy = y0 as f64 + 0.5;
+            // The corners' lines of sight, above and below the band.
+            let corners: Vec<[Probe; 2]> = (0..=bw)
+                .map(|bx| {
+                    let x = (bx * BLOCK) as f64 + 0.5;
+                    [step.probe(x, fy), step.probe(x, fy + BLOCK as f64)]
+                })
+                .collect();
+            let mut band = Band {
+                rows: pixels[0].len() / w,
+                tables: vec![[0.0; TABLE]; pixels.len()],
+                sums: vec![0.0; pixels.len()],
+                squares: vec![0.0; pixels.len()],
+                pixels,
+                width: w,
+                y0,
+                dlon,
+                dlat,
+                ranges: ranges.clone(),
+                offsets: Vec::with_capacity(MAX_READS * MAX_READS),
+                reads: Vec::with_capacity(CAST * CAST),
+                estimate,
+            };
+            for bx in 0..bw {
+                let [c00, c01] = corners[bx];
+                let [c10, c11] = corners[bx + 1];
+                step.block(&mut band, bx * BLOCK, 0, BLOCK, [c00, c10, c01, c11]);
+            }
+        });
+    shading.map(|_| estimate)
 }

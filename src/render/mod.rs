@@ -104,6 +104,10 @@ pub struct FrameStats {
     /// one (ray-cast frames whose pixels are tiled or cast with 2 rays per side or more:
     /// [`crate::raycast::estimate`]).
     pub estimated_error: Option<crate::raycast::estimate::FrameEstimate>,
+    /// Under `map_filter = "relief"`: the 99th percentile over the lit pixels of the reads'
+    /// own estimate of their error ([`footprint::apply_maps`]), which the planner's
+    /// prediction takes where it is the larger ([`crate::fidelity::budget::Plan::observe`]).
+    pub relief_read_p99: Option<f64>,
 }
 
 /// One rendered frame.
@@ -604,7 +608,11 @@ fn render_in_pool(
         for (b, img) in camera_view {
             layers.push((scene.body.band_map(*b).unwrap_or(a), &mut img[..]));
         }
-        footprint::apply_maps(intr, shape, relief, shading, &brdf, pose, &mut layers);
+        let estimate =
+            footprint::apply_maps(intr, shape, relief, shading, &brdf, pose, &mut layers);
+        if let Some(e) = estimate {
+            stats.relief_read_p99 = Some(read_p99(&e, &pl_image));
+        }
         for (b, img) in own_view {
             let intr_b = band_intr
                 .iter()
@@ -639,6 +647,21 @@ fn render_in_pool(
         depth_m,
         stats,
     })
+}
+
+/// The 99th percentile of `estimate` over the pixels lit in `image` (0 with none).
+fn read_p99(estimate: &[f64], image: &[f64]) -> f64 {
+    let mut lit: Vec<f64> = estimate
+        .iter()
+        .zip(image)
+        .filter(|&(_, &v)| v > 0.0)
+        .map(|(&e, _)| e)
+        .collect();
+    if lit.is_empty() {
+        0.0
+    } else {
+        crate::stats::quantiles(&mut lit, [0.99])[0]
+    }
 }
 
 /// The cloud's image through `view`: projection of the midpoints (and the vertices, for

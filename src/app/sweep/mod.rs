@@ -139,6 +139,15 @@ pub struct Row {
     /// 0 in the CSVs written before the feature existed.
     #[serde(default)]
     pub f_relief_texture: f64,
+    /// The frame's own estimate of its reads' p99 under `map_filter = "relief"`
+    /// ([`crate::render::FrameStats::relief_read_p99`]), beside the measured `err_p99`; NaN
+    /// for other settings and in older CSVs.
+    #[serde(default = "nan")]
+    pub est_relief_p99: f64,
+}
+
+fn nan() -> f64 {
+    f64::NAN
 }
 
 impl Row {
@@ -512,6 +521,10 @@ pub fn run(
                 (Err(e), _) | (_, Some(Err(e))) => e.clone(),
                 _ => String::new(),
             };
+            let est_relief_p99 = match &frames[k] {
+                Some(Ok(f)) => f.stats.relief_read_p99.unwrap_or(f64::NAN),
+                _ => f64::NAN,
+            };
             let (e, kept, samples) = match &frames[k] {
                 Some(Ok(f)) => (
                     frame_error(&f.pl, &reference, w, h),
@@ -557,6 +570,7 @@ pub fn run(
                 f_shadow_share: features.shadow_share,
                 f_nonlinear_albedo: features.nonlinear_albedo,
                 f_relief_texture: features.relief_texture,
+                est_relief_p99,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,
@@ -576,7 +590,7 @@ pub fn run(
                 failure,
             };
             progress(&format!(
-                "{}: {:24} {:9.2} ms  total {:.2e}  median {:.2e}  p95 {:.2e}  p99 {:.2e}  ssim {:.6}{}",
+                "{}: {:24} {:9.2} ms  total {:.2e}  median {:.2e}  p95 {:.2e}  p99 {:.2e}  ssim {:.6}{}{}",
                 row.scene,
                 row.setting,
                 row.time_ms_median,
@@ -585,6 +599,11 @@ pub fn run(
                 row.err_p95,
                 row.err_p99,
                 row.ssim,
+                if row.est_relief_p99.is_nan() {
+                    String::new()
+                } else {
+                    format!("  (its reads' own p99 estimate {:.2e})", row.est_relief_p99)
+                },
                 if row.failure.is_empty() {
                     String::new()
                 } else {

@@ -125,21 +125,21 @@ const TABLE: usize = 9;
 ///
 /// | frame | reads a pixel | estimated p99 | measured p99 |
 /// | --- | --- | --- | --- |
-/// | apolune, 71,222 km, 256 x 256 | 7 x 7 | 0.257 | 0.116-0.130 |
-/// | apolune, its centre 128 x 128 | 7 x 7 | 0.38 | 0.235 |
+/// | apolune, 71,222 km, 256 x 256 | 7 x 7 | 0.207 | 0.111-0.135 |
+/// | apolune, its centre 128 x 128 | 7 x 7 | 0.33 | 0.221 |
 /// | row 232, 31,444 km, 128 x 128 | 3 x 3 | 2.7e-2 | 2.6e-2 |
 /// | row 493, 19,661 km, 128 x 128 | 2 x 2 | 2.4e-2 | 6.3e-3 |
-/// | row 493, across its terminator | 2 x 2 | 1.0 | 1.0 |
+/// | row 493, across its terminator | 2 x 2 | 0.38 | 1.0 |
 ///
-/// It is at or above the measured p99 on each (1.0 to 3.8 times it; on the last through
-/// the reads beyond the smooth terminator, [`relief_estimate`]), which is what a frame's
-/// report of its error needs. It sees the reads' error only: on a frame whose p99 is the
-/// limb's and the terminator's (`tests/maps.rs`, hills under a 64 x 64 frame) it is below
-/// the measured p99, and the planner's prediction is the larger of it and the model's. The
-/// shadows' edges, where a read is lit or not, converge more slowly than a smooth integrand
-/// (their error would ask for a scale of about 0.55); the difference between the full and
-/// the coarse reads at the 99th percentile was nevertheless 3 to 11 times the error
-/// measured on the first four.
+/// On the first four it is at or above the measured p99 (1.0 to 3.8 times it), which is
+/// what a frame's report of its error needs; on the last it misses the pixels that no read
+/// sees lit ([`relief_estimate`]). It sees the reads' error only: on a frame whose p99 is
+/// the limb's and the terminator's (`tests/maps.rs`, hills under a 64 x 64 frame) it is
+/// below the measured p99, and the planner's prediction is the larger of it and the
+/// model's. The shadows' edges, where a read is lit or not, converge more slowly than a
+/// smooth integrand (their error would ask for a scale of about 0.55); the difference
+/// between the full and the coarse reads at the 99th percentile was nevertheless 3 to 11
+/// times the error measured on the first four.
 const READ_ESTIMATE_SCALE: f64 = 1.0 / 3.0;
 
 /// The BRDF scale the geometry is integrated with under `MapFilter::Pixel`: the map's mean
@@ -180,7 +180,32 @@ struct Step<'a> {
     /// Under `MapFilter::Relief`: the relief whose shading and shadows every read carries
     /// (the quadrangles integrated the smooth shape), and how it hides the Sun and the camera.
     shading: Option<(&'a Relief, SelfShadowing)>,
+    /// `A_sun A_cam` [m^4] of Eq. 12, with which a pixel near the smooth terminator is
+    /// taken from its reads alone ([`Step::absolute_scale`]).
+    a_sun_cam_m4: f64,
 }
+
+/// What [`Step::relief_pixel`] made of a pixel's reads: whether there were any, whether
+/// `Band::sums` holds the light per unit of solid angle (`absolute`, to be scaled by
+/// [`Step::absolute_scale`]) or the ratio to the quadrangles' light, and the reads' own
+/// error estimate.
+struct ReliefPixel {
+    read: bool,
+    absolute: bool,
+    estimate: f64,
+}
+
+/// Below this `mu0` of the smooth shape at any of a pixel's reads, a pixel under
+/// `MapFilter::Relief` is taken from its reads alone ([`Step::absolute_scale`]), not as a
+/// ratio to the quadrangles' light: towards the terminator that light goes to 0 while the
+/// DEM's slopes facing the Sun keep theirs, and the ratio multiplied the quadrangles'
+/// gridding error there. A 128 x 128 window across NRHO row 493's terminator (19,661 km,
+/// 0.62 texels a pixel) measured total 1.1e-2 at 1/8 quadrangle per pixel and 6.0e-4 at 16
+/// with the ratio, 3.0e-4 at any rung so (SSIM 0.981 -> 0.999); the apolune frame (256 x 256)
+/// total 5.7e-4 -> 4.8e-5 and p99 0.37 -> 0.135 at 1/16. Taking every pixel so changes the
+/// centre of row 493 by 4e-6 of its total. The smooth shape's night side stays dark, as in
+/// the reference (its ground faces away from the Sun however the DEM's normal leans).
+const MU0_ABSOLUTE: f64 = 0.1;
 
 /// What one read shows under `MapFilter::Relief`, per unit of the shape's projected area
 /// (what a pixel's solid angle covers): `smooth`, the light the quadrangles gridded there
@@ -188,15 +213,13 @@ struct Step<'a> {
 /// `a` is `f_r(a; local) k` with `k = mu0 mu / mu_shape` (paper Eq. 37: each area element
 /// of the shape weighed by the cosines of the DEM's normal), 0 where the terrain hides the
 /// Sun or the camera (Eq. 33) or the shape is unlit.
-///
-/// `beyond`: the read is on the smooth shape's night side, seen, where the DEM's own slope
-/// faces the Sun: light the quadrangles do not hold and this step cannot bring in (see
-/// [`relief_estimate`]).
 struct ReliefRead {
     smooth: f64,
     local: Local,
     k: f64,
-    beyond: bool,
+    /// The smooth shape's `mu0` and whether the camera sees it there.
+    mu0_shape: f64,
+    seen: bool,
 }
 
 impl Step<'_> {
@@ -253,13 +276,13 @@ impl Step<'_> {
         let c = (self.pose.camera_position_m - p).normalize();
         let smooth_local = Local::new(n_shape, s, c);
         let (mu0_shape, mu_shape) = (smooth_local.mu0, smooth_local.mu);
-        if mu0_shape <= 0.0 || mu_shape <= 0.0 {
-            let beyond = mu_shape > 0.0 && relief.at(up, false).normal.dot(s) > 0.0;
+        if mu_shape <= 0.0 || mu0_shape <= 0.0 {
             return ReliefRead {
                 smooth: 0.0,
                 local: smooth_local,
                 k: 0.0,
-                beyond,
+                mu0_shape,
+                seen: mu_shape > 0.0,
             };
         }
         let smooth = self.brdf_ref.eval(&smooth_local) * mu0_shape;
@@ -295,7 +318,8 @@ impl Step<'_> {
             smooth,
             local,
             k,
-            beyond: false,
+            mu0_shape,
+            seen: true,
         }
     }
 
@@ -334,7 +358,8 @@ impl Step<'_> {
         (relief, shadows): (&Relief, SelfShadowing),
         read_rad: f64,
         grid: Option<(usize, usize)>,
-    ) -> (bool, f64) {
+        slots: usize,
+    ) -> ReliefPixel {
         // Per map: the relief's light in `sums`, the map's `a / s_ref` in `squares` (the
         // fallback).
         band.sums.iter_mut().for_each(|x| *x = 0.0);
@@ -342,18 +367,19 @@ impl Step<'_> {
         let reads = std::mem::take(&mut band.reads);
         let mut smooth = 0.0;
         // The first map's light and the smooth shape's over the coarser grid.
-        let (mut coarse_light, mut coarse_smooth) = (0.0, 0.0);
-        let mut beyond = false;
+        let (mut coarse_light, mut coarse_smooth, mut coarse_count) = (0.0, 0.0, 0usize);
+        let mut near_night = false;
         for (j, &(lon, lat)) in reads.iter().enumerate() {
             let read = self.relief_read(relief, shadows, (lon, lat));
             smooth += read.smooth;
-            beyond |= read.beyond;
+            near_night |= read.seen && read.mu0_shape < MU0_ABSOLUTE;
             let f_ref = if read.k > 0.0 && self.linear {
                 self.brdf_ref.eval(&read.local)
             } else {
                 0.0
             };
             let coarse = grid.is_some_and(|(ns, _)| (j % ns) % 2 == 0 && (j / ns) % 2 == 0);
+            coarse_count += coarse as usize;
             for (m, map) in self.maps.iter().enumerate() {
                 let a = map.scale_over_lon_lat(lon, lat, read_rad, self.s_ref);
                 let light = self.relief_light(&read, a, f_ref);
@@ -366,6 +392,23 @@ impl Step<'_> {
             }
         }
         let count = reads.len() as f64;
+        band.reads = reads;
+        if near_night {
+            // The light per unit of solid angle, the pixel's misses counted as dark.
+            let slots = slots.max(1) as f64;
+            band.sums.iter_mut().for_each(|x| *x /= slots);
+            let estimate = match (grid, band.sums.first()) {
+                (Some(_), Some(&fine)) => {
+                    relief_estimate(fine, coarse_light / coarse_count.max(1) as f64)
+                }
+                _ => 0.0,
+            };
+            return ReliefPixel {
+                read: count > 0.0,
+                absolute: true,
+                estimate,
+            };
+        }
         for m in 0..self.maps.len() {
             band.sums[m] = if smooth > 0.0 {
                 band.sums[m] / smooth
@@ -374,7 +417,6 @@ impl Step<'_> {
             };
         }
         let estimate = match (grid, band.sums.first()) {
-            (Some(_), _) if beyond => 1.0,
             (Some(_), Some(&fine)) if smooth > 0.0 => {
                 let coarse = if coarse_smooth > 0.0 {
                     coarse_light / coarse_smooth
@@ -385,8 +427,50 @@ impl Step<'_> {
             }
             _ => 0.0,
         };
-        band.reads = reads;
-        (count > 0.0, estimate)
+        ReliefPixel {
+            read: count > 0.0,
+            absolute: false,
+            estimate,
+        }
+    }
+
+    /// Pixel `(i, r)` (band row) from its reads ([`Step::relief_pixel`], left in
+    /// `band.sums`): scaled by them, or taken from them alone.
+    fn set_relief_pixel(&self, band: &mut Band, got: &ReliefPixel, i: usize, r: usize) {
+        let w = band.width;
+        if got.absolute {
+            let Some(&(lon, lat)) = band.reads.get(band.reads.len() / 2) else {
+                return;
+            };
+            let (p, _) = self
+                .shape
+                .surface(crate::geometry::unit_from_lon_lat(lon, lat));
+            let k = self.absolute_scale(i as f64, (band.y0 + r) as f64, p);
+            for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
+                img[r * w + i] = k * f;
+            }
+        } else {
+            for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
+                img[r * w + i] *= f;
+            }
+        }
+    }
+
+    /// The `(P/L)` [sr m^2] of the pixel whose corners are at `(u, v)` and `(u + 1, v + 1)`
+    /// [px] per unit of the light its reads carry (`f_r mu0 mu / mu_shape`, the read at
+    /// `p_body` [m]): Eq. 12 summed over the surface the pixel sees, whose `mu dA / d_cam^2`
+    /// is the pixel's solid angle `Omega` (from the lines of sight through its corners,
+    /// through the camera's distortion), `A_sun A_cam cos(eps) Omega / d_sun^2`.
+    fn absolute_scale(&self, u: f64, v: f64, p_body: DVec3) -> f64 {
+        let los = |du: f64, dv: f64| {
+            super::depth::line_of_sight(self.intrinsics, self.pose, u + du, v + dv)
+        };
+        let (d00, d10, d01, d11) = (los(0.0, 0.0), los(1.0, 0.0), los(0.0, 1.0), los(1.0, 1.0));
+        let omega = 0.5 * (d11 - d00).cross(d10 - d01).length();
+        let axis = self.pose.body_from_camera * DVec3::Z;
+        let to_p = (p_body - self.pose.camera_position_m).normalize();
+        let ds2 = (self.pose.sun_position_m - p_body).length_squared();
+        self.a_sun_cam_m4 * to_p.dot(axis).max(0.0) * omega / ds2
     }
 
     /// `f_r(a) / f_r(s_ref)` at `local`'s angles (`a / s_ref` for the linear models, and where
@@ -438,13 +522,9 @@ impl Step<'_> {
                     band.reads.push((p.lon, p.lat));
                 }
             }
-            if self
-                .relief_pixel(band, shading, read_rad.unwrap_or(0.0), None)
-                .0
-            {
-                for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
-                    img[r * w + i] *= f;
-                }
+            let got = self.relief_pixel(band, shading, read_rad.unwrap_or(0.0), None, CAST * CAST);
+            if got.read {
+                self.set_relief_pixel(band, &got, i, r);
             } else {
                 let p = self.probe(i as f64 + 0.5, v);
                 for (m, img) in band.pixels.iter_mut().enumerate() {
@@ -575,7 +655,11 @@ impl Step<'_> {
             .pixels
             .iter()
             .any(|img| (y0..y1).any(|r| img[r * w + x0..r * w + x1].iter().any(|&v| v != 0.0)));
-        if !lit {
+        // Under `MapFilter::Relief` a pixel across the terminator that the quadrangles left
+        // dark is read too (its reads on the day side bring their light).
+        let day =
+            |p: &Probe| self.shading.is_some() && p.hit && p.local.mu > 0.0 && p.local.mu0 > 0.0;
+        if !lit && !c.iter().any(day) {
             return;
         }
         let fy = (band.y0 + y0) as f64 + 0.5;
@@ -625,7 +709,7 @@ impl Step<'_> {
         if size == 1 && (!hits || far_off) {
             let (i, r) = (x0, y0);
             let v = (band.y0 + r) as f64 + 0.5;
-            if band.pixels.iter().any(|img| img[r * w + i] != 0.0) {
+            if band.pixels.iter().any(|img| img[r * w + i] != 0.0) || c.iter().any(day) {
                 self.cast_pixel(band, i, r, v);
             }
             return;
@@ -659,6 +743,10 @@ impl Step<'_> {
             c[2].local.mu0,
             c[3].local.mu0,
         ];
+        // How much `mu0` changes across a pixel of the block (at most).
+        let mu0_per_px = (mu0.iter().fold(f64::MIN, |a, &b| a.max(b))
+            - mu0.iter().fold(f64::MAX, |a, &b| a.min(b)))
+            / n;
         // What each read stands for [rad of latitude]: at most half a texel (the map itself)
         // but where `MAX_READS` caps the reads (then an area-averaged level).
         let read_rad = (len_s / ns as f64).max(len_t / nt as f64) * band.dlat;
@@ -688,21 +776,21 @@ impl Step<'_> {
         for r in y0..y1 {
             let t = (r - y0) as f64 / n;
             for i in x0..x1 {
-                if band.pixels.iter().all(|img| img[r * w + i] == 0.0) {
+                let s = (i - x0) as f64 / n;
+                if band.pixels.iter().all(|img| img[r * w + i] == 0.0)
+                    && !(self.shading.is_some() && lerp(mu0, s, t) + mu0_per_px > 0.0)
+                {
                     continue;
                 }
-                let s = (i - x0) as f64 / n;
                 if let Some(shading) = self.shading {
                     band.reads.clear();
                     for &(a, b) in &band.offsets {
                         band.reads
                             .push((lerp(lon, s + a, t + b), lerp(lat, s + a, t + b)));
                     }
-                    let (_, estimate) = self.relief_pixel(band, shading, read_rad, Some((ns, nt)));
-                    for (img, &f) in band.pixels.iter_mut().zip(&band.sums) {
-                        img[r * w + i] *= f;
-                    }
-                    band.estimate[r * w + i] = estimate;
+                    let got = self.relief_pixel(band, shading, read_rad, Some((ns, nt)), ns * nt);
+                    self.set_relief_pixel(band, &got, i, r);
+                    band.estimate[r * w + i] = got.estimate;
                     continue;
                 }
                 // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
@@ -778,14 +866,10 @@ fn quadratic(table: &[f64; TABLE], x: f64) -> f64 {
 /// The reads' own estimate of a pixel's relative error under `MapFilter::Relief`, from its
 /// factor over all its reads (`fine`) and over a quarter of them on a grid twice as coarse
 /// (`coarse`): `READ_ESTIMATE_SCALE |fine - coarse| / fine`; where no read is lit but some
-/// of the coarse grid's would be, 1. A pixel with a read on the smooth shape's night side
-/// whose DEM slope faces the Sun ([`ReliefRead::beyond`]) is taken at 1: its light there is
-/// missing (the quadrangles integrate the smooth shape, lit on its day side only), and the
-/// pixels wholly beyond the smooth terminator, which hold only such light, are not read at
-/// all. On NRHO row 493 (19,661 km, 0.62 texels a pixel) a 128 x 128 window across the
-/// terminator measured p99 1.0 and total 1.1e-2 (at 1/8 per pixel; 6.0e-4 at 16) against
-/// the reference, where the quadrangles carrying the relief (`pixel`, 16 per pixel) measured
-/// 0.19 and 3.8e-5.
+/// of the coarse grid's would be, 1. It cannot see a pixel none of whose reads is lit (a
+/// sliver of light between shadows): across NRHO row 493's terminator (2 x 2 reads a
+/// pixel) 414 of 10,085 lit pixels, each about 1 % of the median pixel's light, are dark,
+/// and the estimated p99 is 0.38 where 1.0 is measured.
 #[inline]
 fn relief_estimate(fine: f64, coarse: f64) -> f64 {
     if fine > 0.0 {
@@ -815,6 +899,7 @@ pub fn apply(
     brdf_ref: &Brdf,
     albedo: &AlbedoMap,
     pose: &Pose,
+    a_sun_cam_m4: f64,
     image: &mut [f64],
 ) -> Option<Vec<f64>> {
     let mut layers = [(albedo, image)];
@@ -825,6 +910,7 @@ pub fn apply(
         shading,
         brdf_ref,
         pose,
+        a_sun_cam_m4,
         &mut layers,
     )
 }
@@ -837,6 +923,9 @@ pub fn apply(
 /// and shadows the reads carry, the quadrangles having integrated the smooth shape. Under
 /// `shading` it returns the reads' own relative error estimate per pixel of the first
 /// layer ([`relief_estimate`]; 0 where a pixel was not read on a grid); else `None`.
+/// `a_sun_cam_m4`: `A_sun A_cam` of Eq. 12 (the pixels near the smooth terminator are then
+/// taken from their reads alone).
+#[allow(clippy::too_many_arguments)]
 pub fn apply_maps(
     intrinsics: &Intrinsics,
     shape: &Shape,
@@ -844,6 +933,7 @@ pub fn apply_maps(
     shading: Option<(&Relief, SelfShadowing)>,
     brdf_ref: &Brdf,
     pose: &Pose,
+    a_sun_cam_m4: f64,
     layers: &mut [(&AlbedoMap, &mut [f64])],
 ) -> Option<Vec<f64>> {
     let (w, h) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
@@ -876,6 +966,7 @@ pub fn apply_maps(
         // footprint by a few percent at most, which only picks the map level).
         ifov: (1.0 / (fx * fy)).sqrt(),
         shading,
+        a_sun_cam_m4,
     };
     let bw = w.div_ceil(BLOCK);
     // Each image cut in bands of BLOCK rows; band `k` of every image goes to one task.

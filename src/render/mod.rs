@@ -593,6 +593,7 @@ fn render_in_pool(
         let t0 = Instant::now();
         let (relief, _, shading) = relief_roles(scene, settings);
         let shape = &scene.body.shape;
+        let a_sun_cam = |i: &crate::camera::Intrinsics| scene.sun.area_m2() * i.aperture_area_m2();
         // A band with a map of its own but the camera's distortion: the gridded geometry,
         // before the camera's map comes in.
         for (b, _) in &scene.body.band_maps {
@@ -608,8 +609,16 @@ fn render_in_pool(
         for (b, img) in camera_view {
             layers.push((scene.body.band_map(*b).unwrap_or(a), &mut img[..]));
         }
-        let estimate =
-            footprint::apply_maps(intr, shape, relief, shading, &brdf, pose, &mut layers);
+        let estimate = footprint::apply_maps(
+            intr,
+            shape,
+            relief,
+            shading,
+            &brdf,
+            pose,
+            a_sun_cam(intr),
+            &mut layers,
+        );
         if let Some(e) = estimate {
             stats.relief_read_p99 = Some(read_p99(&e, &pl_image));
         }
@@ -619,7 +628,17 @@ fn render_in_pool(
                 .find(|(k, _)| k == b)
                 .map_or(intr, |(_, i)| i);
             let map = scene.body.band_map(*b).unwrap_or(a);
-            footprint::apply(intr_b, shape, relief, shading, &brdf, map, pose, img);
+            footprint::apply(
+                intr_b,
+                shape,
+                relief,
+                shading,
+                &brdf,
+                map,
+                pose,
+                a_sun_cam(intr_b),
+                img,
+            );
         }
         stats.total_pl_image = pl_image.iter().sum();
         t.footprint = ms(t0);

@@ -816,6 +816,43 @@ fn the_relief_over_each_pixel_footprint_matches_the_reference() {
     assert_eq!(frame.stats.relief_read_p99, None);
 }
 
+/// A flat DEM read over each pixel (`map_filter = "relief"`) is the frame without it (the
+/// quadrangles' closed form, the map read over each pixel), at 60 and 110 deg of phase: to
+/// 3e-5 at the median pixel, which checks the scale of the pixels near the terminator taken
+/// from their reads alone (`A_sun A_cam cos(eps) Omega / d_sun^2` times their mean light).
+/// Their 2 x 2 reads (0.75 texels a pixel) place the terminator within the pixel coarsely:
+/// total 6.6e-4 and 6.2e-4, p99 0.76 and 0.79, where the ratio to the quadrangles' light
+/// would be exact on a flat DEM; on the LOLA Moon that ratio multiplied the quadrangles'
+/// gridding error instead (`docs/performance.md`, "Each relief frame's own error"). Reading
+/// such pixels on 8 x 8 brought NRHO row 493's terminator to p99 0.24 but cost its frame
+/// 2.5 times the time; not kept.
+#[test]
+fn a_flat_relief_read_over_each_pixel_is_the_frame_without_it() {
+    use optistim::fidelity::metrics::frame_error;
+    use optistim::render::{Integration, MapFilter};
+    for (x, y) in [(0.5, 3f64.sqrt() / 2.0), (-0.342, 0.940)] {
+        let spec = SceneSpec {
+            sun_m: [AU * x, AU * y, 0.0],
+            resolution: [64, 64],
+            focal_m: 0.0015,
+            ..Default::default()
+        };
+        let mut smooth = with_fine_map(spec.config());
+        smooth.settings.integration = Integration::Exact;
+        smooth.settings.map_filter = MapFilter::Pixel;
+        let mut flat = smooth.clone();
+        let dem = Map::from_values(Path::new("flat"), 8, 4, vec![0.0; 32], &Encoding::default());
+        flat.scene.body.relief =
+            Some(optistim::body::Relief::new(dem.unwrap(), R_MOON, false).unwrap());
+        flat.settings.map_filter = MapFilter::Relief;
+        let (_, a) = total(&flat);
+        let (_, b) = total(&smooth);
+        let e = frame_error(&a, &b, 64, 64);
+        eprintln!("phase {:.0} deg: {e:?}", y.atan2(x).to_degrees());
+        assert!(e.median < 1e-4 && e.total.abs() < 1e-3, "{e:?}");
+    }
+}
+
 /// `map_filter = "relief"` reads an albedo map and an undisplaced relief over each pixel: a
 /// body without a map, or a DEM that displaces the surface (whose lines of sight meet the
 /// displaced ground, which the smooth shape's quadrangles do not hold), is refused with an

@@ -72,7 +72,12 @@
 //! The reads are spaced on the finer of the map's and the DEM's texels, and Hapke's BRDF is
 //! evaluated at each read (no table: the relief's angles change from read to read). On the
 //! apolune frame: median 8.3e-4 at 1 per pixel, for about a microsecond a read, most of it
-//! the shadow rays (`docs/performance.md`, "The relief over each pixel").
+//! the shadow rays (`docs/performance.md`, "The relief over each pixel"). Near the terminator
+//! (the smooth shape's `mu0` below [`MU0_ABSOLUTE`] at a read) a pixel is its reads' mean
+//! light times `A_sun A_cam cos(eps) Omega / d_sun^2` (Eq. 12 over its solid angle,
+//! [`Step::absolute_scale`]) instead, where the ratio multiplied the quadrangles' gridding
+//! error. Each pixel's reads also estimate their own error against a quarter of them
+//! ([`relief_estimate`]), and the frame reports its 99th percentile.
 //!
 //! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
 //! of their own, `[[body.band_map]]`) share the lines of sight, the blocks and the reads'

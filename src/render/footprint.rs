@@ -384,7 +384,10 @@ impl Step<'_> {
                 0.0
             };
             let coarse = grid.is_some_and(|(ns, _)| (j % ns) % 2 == 0 && (j / ns) % 2 == 0);
-            coarse_count += coarse as usize;
+            if coarse {
+                coarse_count += 1;
+                coarse_smooth += read.smooth;
+            }
             for (m, map) in self.maps.iter().enumerate() {
                 let a = map.scale_over_lon_lat(lon, lat, read_rad, self.s_ref);
                 let light = self.relief_light(&read, a, f_ref);
@@ -392,49 +395,40 @@ impl Step<'_> {
                 band.squares[m] += a / self.s_ref;
                 if m == 0 && coarse {
                     coarse_light += light;
-                    coarse_smooth += read.smooth;
                 }
             }
         }
         let count = reads.len() as f64;
         band.reads = reads;
-        if near_night {
-            // The light per unit of solid angle, the pixel's misses counted as dark.
-            let slots = slots.max(1) as f64;
-            band.sums.iter_mut().for_each(|x| *x /= slots);
-            let estimate = match (grid, band.sums.first()) {
-                (Some(_), Some(&fine)) => {
-                    relief_estimate(fine, coarse_light / coarse_count.max(1) as f64)
-                }
-                _ => 0.0,
+        // The pixel's factor, from all the reads and from the coarse quarter: near the
+        // terminator the light per unit of solid angle (the pixel's misses counted as dark),
+        // else the ratio to the smooth shape's light.
+        let (absolute, norm, coarse_norm) = if near_night {
+            (true, slots.max(1) as f64, coarse_count.max(1) as f64)
+        } else {
+            (false, smooth, coarse_smooth)
+        };
+        let fine = band.sums.first().copied().unwrap_or(0.0);
+        let estimate = if grid.is_some() && norm > 0.0 {
+            let coarse = if coarse_norm > 0.0 {
+                coarse_light / coarse_norm
+            } else {
+                0.0
             };
-            return ReliefPixel {
-                read: count > 0.0,
-                absolute: true,
-                estimate,
-            };
-        }
+            relief_estimate(fine / norm, coarse)
+        } else {
+            0.0
+        };
         for m in 0..self.maps.len() {
-            band.sums[m] = if smooth > 0.0 {
-                band.sums[m] / smooth
+            band.sums[m] = if norm > 0.0 {
+                band.sums[m] / norm
             } else {
                 band.squares[m] / count.max(1.0)
             };
         }
-        let estimate = match (grid, band.sums.first()) {
-            (Some(_), Some(&fine)) if smooth > 0.0 => {
-                let coarse = if coarse_smooth > 0.0 {
-                    coarse_light / coarse_smooth
-                } else {
-                    0.0
-                };
-                relief_estimate(fine, coarse)
-            }
-            _ => 0.0,
-        };
         ReliefPixel {
             read: count > 0.0,
-            absolute: false,
+            absolute,
             estimate,
         }
     }

@@ -309,6 +309,29 @@ pub(crate) fn unit_hash(i: usize) -> f64 {
     x as f64 / (1u64 << 24) as f64
 }
 
+/// A global DEM on a 720 x 360 grid (half a degree a texel) over the Moon's radius, its
+/// height [m] at texel `(column, row)` (and index `i`) by `height`: the marchers' tests'
+/// terrains.
+#[cfg(test)]
+pub(crate) fn test_relief(
+    height: impl Fn(f64, f64, usize) -> f64,
+    displaces: bool,
+) -> super::Relief {
+    let (w, h) = (720usize, 360usize);
+    let v: Vec<f64> = (0..w * h)
+        .map(|i| height((i % w) as f64, (i / w) as f64, i))
+        .collect();
+    let dem = Map::from_values(
+        std::path::Path::new("rough"),
+        w,
+        h,
+        v,
+        &super::maps::Encoding::default(),
+    )
+    .unwrap();
+    super::Relief::new(dem, 1_737_400.0, displaces).unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

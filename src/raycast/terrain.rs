@@ -180,18 +180,12 @@ mod tests {
     /// included) and for rays from afar at every incidence, on the displaced surface.
     #[test]
     fn the_pyramid_leaps_change_no_answer() {
-        let (w, h) = (720usize, 360usize);
         let hash = crate::body::pyramid::unit_hash;
-        let v: Vec<f64> = (0..w * h)
-            .map(|i| {
-                let (c, r) = ((i % w) as f64, (i / w) as f64);
-                3000.0 * (c * 0.07).sin() * (r * 0.11).cos() + 1500.0 * hash(i)
-            })
-            .collect();
-        let dem =
-            Map::from_values(std::path::Path::new("rough"), w, h, v, &Encoding::default()).unwrap();
+        let relief = crate::body::pyramid::test_relief(
+            |c, r, i| 3000.0 * (c * 0.07).sin() * (r * 0.11).cos() + 1500.0 * hash(i),
+            true,
+        );
         let radius = 1_737_400.0;
-        let relief = Relief::new(dem, radius, true).unwrap();
         let fast = Terrain::new(&relief);
         let slow = Terrain {
             pyramid: None,

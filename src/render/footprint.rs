@@ -1362,7 +1362,6 @@ pub fn apply_maps(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::body::maps::{Encoding, Map};
 
     /// The share of a cell on one side of a line, against the areas drawn by hand.
     #[test]
@@ -1389,17 +1388,12 @@ mod tests {
     /// 0.064 against 0.113.)
     #[test]
     fn a_shadows_edge_is_placed_between_the_reads() {
-        let (w, h) = (720usize, 360usize);
+        let h = 360usize;
         let hash = crate::body::pyramid::unit_hash;
-        let v: Vec<f64> = (0..w * h)
-            .map(|i| {
-                let (c, r) = ((i % w) as f64, (i / w) as f64);
-                2000.0 * (c * 0.9).sin() * (r * 0.7).cos() + 300.0 * hash(i)
-            })
-            .collect();
-        let dem =
-            Map::from_values(std::path::Path::new("rough"), w, h, v, &Encoding::default()).unwrap();
-        let relief = Relief::new(dem, 1_737_400.0, false).unwrap();
+        let relief = crate::body::pyramid::test_relief(
+            |c, r, i| 2000.0 * (c * 0.9).sin() * (r * 0.7).cos() + 300.0 * hash(i),
+            false,
+        );
         let (lon0, lat0) = (0.3, 0.2);
         let centre = crate::geometry::unit_from_lon_lat(lon0, lat0);
         let (east, north) = crate::geometry::east_north(centre);

@@ -149,8 +149,8 @@ const TABLE: usize = 9;
 /// (With the shadows' edges placed between the reads, [`lit_shares`]; before, the apolune
 /// frame's centre 128 x 128 estimated 0.33 against 0.221 measured, and the terminator
 /// 0.38 against 1.0: its pixels that no read saw lit.) It is at or above the measured p99
-/// on each (1.2 to 3.8 times it), which is what a frame's report of its error needs. It sees the reads' error only: on a frame whose p99 is
-/// the limb's and the terminator's (`tests/maps.rs`, hills under a 64 x 64 frame) it is
+/// on each (1.2 to 3.8 times it), which is what a frame's report of its error needs. It
+/// sees the reads' error only: on a frame whose p99 is the limb's and the terminator's (`tests/maps.rs`, hills under a 64 x 64 frame) it is
 /// below the measured p99, and the planner's prediction is the larger of it and the
 /// model's. The shadows' edges, where a read is lit or not, converge more slowly than a
 /// smooth integrand (their error would ask for a scale of about 0.55); the difference
@@ -394,8 +394,9 @@ impl Step<'_> {
 
     /// A pixel's factor under `MapFilter::Relief` from its reads, `band.reads` (map
     /// coordinates, each standing for `read_rad` of the surface), spread evenly over the
-    /// pixel's image, what each shows (`band.relief`) and its lit share (`band.lit`): the relief's light over the smooth shape's at the reference scale, both
-    /// summed over the reads, per map, into `band.sums`. Where no read sees the smooth shape
+    /// pixel's image, what each shows (`band.relief`) and its lit share (`band.lit`): the
+    /// relief's light over the smooth shape's at the reference scale, both summed over the
+    /// reads, per map, into `band.sums`. Where no read sees the smooth shape
     /// lit (a pixel the quadrangles' light spills into), the map alone: its mean over the
     /// reads. False where there is no read.
     ///
@@ -688,8 +689,8 @@ struct Band<'a> {
     tables: Vec<[f64; TABLE]>,
     sums: Vec<f64>,
     squares: Vec<f64>,
-    /// A pixel's reads under `MapFilter::Relief` (map coordinates [rad]), what each shows,
-    /// its lit share and its shadow rays' clearance ([`lit_shares`]).
+    /// A pixel's reads under `MapFilter::Relief` (map coordinates [rad]), what each shows
+    /// and its lit share; and the shadows' edges between a lattice's reads ([`lit_shares`]).
     reads: Vec<(f64, f64)>,
     relief: Vec<ReliefRead>,
     lit: Vec<f64>,
@@ -710,7 +711,8 @@ impl Step<'_> {
     /// per pixel, at midpoints of one lattice over the block, into `band.lattice` (`None`
     /// for a pixel that is dark and whose interpolated `mu0`, with `mu0_per_px` of margin,
     /// says it is on the night side), each with its lit share ([`lit_shares`], edges
-    /// between the reads of neighbouring pixels included).
+    /// between the reads of neighbouring pixels included; under the horizon map, each
+    /// read's own answer).
     #[allow(clippy::too_many_arguments)]
     fn read_lattice(
         &self,

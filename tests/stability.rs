@@ -1,6 +1,7 @@
 //! The stability suite (`optistim stability`, `src/app/stability.rs`) as a test: every case
 //! renders (finite, in range, light conserved where the body is wholly in view) or is refused
-//! with a typed error, as it must; none gives NaN, panics or hangs (each within 300 s).
+//! with a typed error, as it must; none gives NaN, panics or hangs (each within 300 s); and
+//! under `fidelity = "budget"` none is over the budget without saying so.
 
 use optistim::app::stability::{self, Outcome};
 
@@ -34,4 +35,31 @@ fn every_case_renders_or_is_refused_as_it_must_never_nan_panic_or_hang() {
     let behind = find("body behind the camera").error.unwrap();
     assert_eq!((behind.total, behind.lit_px), (0.0, 0));
     assert!(reports.len() >= 30);
+    // Under `fidelity = "budget"` a frame is within the budget or says it is not: never
+    // silently over it (the model's domain, `Planner::outside_model`, caught the camera 1 m
+    // over the ground, the 10 : 1 ellipsoid, the DEM's cliff and spike, the narrow surge).
+    let silent: Vec<_> = reports
+        .iter()
+        .filter(|r| r.budgeted.as_ref().is_some_and(|b| !b.honest()))
+        .collect();
+    assert!(
+        silent.is_empty(),
+        "over the budget, said it met it: {silent:#?}"
+    );
+    let budgeted = |name: &str| find(name).budgeted.clone().unwrap();
+    // Inside the model's domain the budget holds where the frame said it would.
+    for name in [
+        "phase 0",
+        "phase 90",
+        "body cut by one edge",
+        "pole-on view",
+    ] {
+        let b = budgeted(name);
+        assert!(b.meets_budget && b.within(), "{name}: {b:?}");
+    }
+    let elongated = budgeted("ellipsoid of axis ratio 10");
+    assert!(
+        !elongated.meets_budget && elongated.points_per_pixel == 16.0,
+        "{elongated:?}"
+    );
 }

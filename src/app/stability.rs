@@ -10,6 +10,11 @@
 //! - or it is refused with a typed error naming the cause;
 //! - never a NaN, a panic or a hang, which the suite reports as failures.
 //!
+//! Each case that renders is rendered again as `fidelity = "budget"` plans it (the default
+//! budget, the shipped error model): the settings chosen, the error the frame predicts for
+//! itself and the one measured against the same reference. A frame must be within the
+//! budget or say that it is not (`meets_budget: false`): never silently over it.
+//!
 //! The same cases run as a test (`tests/stability.rs`); the report is the table written to
 //! `docs/stability.md`.
 
@@ -68,7 +73,38 @@ pub struct CaseReport {
     pub reference_est_total: Option<f64>,
     /// Whether the error is within [`BUDGET`] (median, p99, total).
     pub within_budget: Option<bool>,
+    /// The same frame under `fidelity = "budget"` (where it renders and has a reference).
+    pub budgeted: Option<Budgeted>,
     pub ms: f64,
+}
+
+/// A case's frame as `fidelity = "budget"` plans it.
+#[derive(Clone, Debug, Serialize)]
+pub struct Budgeted {
+    /// The settings chosen: quadrangles per pixel (0 for a ray-cast frame), self-shadowing
+    /// and map filter.
+    pub points_per_pixel: f64,
+    pub self_shadowing: String,
+    pub map_filter: String,
+    /// What the frame said of itself: its predicted error and whether that meets the budget.
+    pub predicted: (f64, f64, f64),
+    pub meets_budget: bool,
+    /// Measured against the reference.
+    pub error: FrameError,
+    pub ms: f64,
+}
+
+impl Budgeted {
+    /// Within [`BUDGET`] (median, p99, total) as measured.
+    pub fn within(&self) -> bool {
+        let e = &self.error;
+        e.median <= BUDGET.0 && e.p99 <= BUDGET.1 && e.total <= BUDGET.2
+    }
+
+    /// Within the budget, or the frame said it would not be.
+    pub fn honest(&self) -> bool {
+        self.within() || !self.meets_budget
+    }
 }
 
 /// One case: its name, scene text (a full scene TOML), and what to do to the pose after
@@ -401,9 +437,10 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
     let name = case.name.to_string();
     let expected = if case.renders { "render" } else { "refusal" };
     let t0 = Instant::now();
-    let report = |outcome, energy, error: Option<FrameError>, est, ms| CaseReport {
+    let report = |outcome, energy, error: Option<FrameError>, est, budgeted, ms| CaseReport {
         case: name.clone(),
         expected,
+        budgeted,
         within_budget: error
             .as_ref()
             .map(|e| e.median <= BUDGET.0 && e.p99 <= BUDGET.1 && e.total <= BUDGET.2),
@@ -437,6 +474,7 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
                 None,
                 None,
                 None,
+                None,
                 0.0,
             );
         }
@@ -464,7 +502,8 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
                 let r = reference::render(&cfg.scene, &cfg.pose, &REFERENCE)
                     .map_err(|e| format!("the reference: {e}"))?;
                 let e = frame_error(&frame.pl, &r.frame.pl, frame.width, frame.height);
-                Some((e, r.report.est_error_total))
+                let budgeted = budgeted(&mut renderer, &cfg, &r.frame.pl)?;
+                Some((e, r.report.est_error_total, budgeted))
             } else {
                 None
             };
@@ -478,6 +517,7 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
             Outcome::Defect {
                 what: format!("no answer within {} s", limit.as_secs()),
             },
+            None,
             None,
             None,
             None,
@@ -496,10 +536,11 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
                 None,
                 None,
                 None,
+                None,
                 ms(),
             )
         }
-        Ok(Ok(Err(error))) => report(Outcome::Refused { error }, None, None, None, ms()),
+        Ok(Ok(Err(error))) => report(Outcome::Refused { error }, None, None, None, None, ms()),
         Ok(Ok(Ok((stats, bad_px, dn_over, reference)))) => {
             let cloud = stats.total_pl_points;
             let energy =
@@ -517,13 +558,38 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
             } else {
                 Outcome::Rendered
             };
-            let (error, est) = match reference {
-                Some((e, est)) => (Some(e), Some(est)),
-                None => (None, None),
+            let (error, est, budgeted) = match reference {
+                Some((e, est, b)) => (Some(e), Some(est), Some(b)),
+                None => (None, None, None),
             };
-            report(outcome, energy, error, est, ms())
+            report(outcome, energy, error, est, budgeted, ms())
         }
     }
+}
+
+/// The frame of `cfg` as `fidelity = "budget"` plans it (the default budget, the shipped
+/// model), against `reference`.
+fn budgeted(renderer: &mut Renderer, cfg: &Config, reference: &[f64]) -> Result<Budgeted, String> {
+    use crate::fidelity::budget::{Budget, ErrorModel, Planner};
+    let model = ErrorModel::shipped().map_err(|e| e.to_string())?;
+    let planner = Planner::new(&cfg.scene, &cfg.settings, Budget::default(), model);
+    let t0 = Instant::now();
+    let mut plan = planner.plan(&cfg.scene, &cfg.pose);
+    let frame = renderer
+        .render(&cfg.scene, &cfg.pose, &plan.settings)
+        .map_err(|e| format!("under the budget: {e}"))?;
+    plan.observe(&frame.stats);
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    let p = plan.predicted;
+    Ok(Budgeted {
+        points_per_pixel: plan.points_per_pixel,
+        self_shadowing: format!("{:?}", plan.self_shadowing),
+        map_filter: format!("{:?}", plan.map_filter),
+        predicted: (p.median, p.p99, p.total),
+        meets_budget: plan.meets_budget,
+        error: frame_error(&frame.pl, reference, frame.width, frame.height),
+        ms,
+    })
 }
 
 /// Runs every case (each within `limit`), writing its temporary maps under `work`.
@@ -600,6 +666,40 @@ pub fn markdown(reports: &[CaseReport], work: &Path) -> String {
                 None => "",
             },
             r.ms
+        );
+    }
+    s += "\n## Under the budget\n\n\
+          Each case that renders, rendered again as `fidelity = \"budget\"` plans it (the\n\
+          default budget, the shipped error model): the settings it chose (quadrangles per\n\
+          pixel, 0 for a ray-cast frame; self-shadowing; map filter), the error it predicted\n\
+          for itself and whether that meets the budget (\"said\"), and the error measured\n\
+          against the same reference. A frame is within the budget or says it is not; one over\n\
+          it that said it met it (**silent**) fails the test.\n\n\
+          | case | settings | predicted median / p99 / total | said | measured median / p99 / total | budget | ms |\n\
+          | --- | --- | --- | --- | --- | --- | --- |\n";
+    for r in reports {
+        let Some(b) = &r.budgeted else { continue };
+        let (pm, pp, pt) = b.predicted;
+        let e = &b.error;
+        s += &format!(
+            "| {} | {}, {}, {} | {:.1e} / {:.1e} / {:.1e} | {} | {:.1e} / {:.1e} / {:.1e} | {} | {:.0} |\n",
+            r.case,
+            b.points_per_pixel,
+            b.self_shadowing,
+            b.map_filter,
+            pm,
+            pp,
+            pt,
+            if b.meets_budget { "meets" } else { "over" },
+            e.median,
+            e.p99,
+            e.total,
+            match (b.within(), b.honest()) {
+                (true, _) => "within",
+                (false, true) => "over, as said",
+                (false, false) => "**silent**",
+            },
+            b.ms
         );
     }
     s

@@ -973,6 +973,11 @@ impl Relief {
         (sum / count.max(1) as f64, self.steep_slope)
     }
 
+    /// The DEM's highest height less its lowest [m].
+    pub fn height_span_m(&self) -> f64 {
+        self.top_m - self.bottom_m
+    }
+
     /// Whether the DEM displaces the surface (else it only tilts the normals).
     pub fn displaces(&self) -> bool {
         self.displaces

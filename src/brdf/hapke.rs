@@ -62,6 +62,11 @@ pub struct Hapke {
 }
 
 impl Hapke {
+    /// The parameters other than `w`.
+    pub fn params(&self) -> &HapkeParams {
+        &self.p
+    }
+
     pub fn new(w: f64, p: HapkeParams) -> Hapke {
         let x = 1.209 * p.filling_factor.powf(2.0 / 3.0);
         let k = if x < 1e-12 { 1.0 } else { -(1.0 - x).ln() / x };

@@ -57,9 +57,20 @@ fn every_case_renders_or_is_refused_as_it_must_never_nan_panic_or_hang() {
         let b = budgeted(name);
         assert!(b.meets_budget && b.within(), "{name}: {b:?}");
     }
-    let elongated = budgeted("ellipsoid of axis ratio 10");
-    assert!(
-        !elongated.meets_budget && elongated.points_per_pixel == 16.0,
-        "{elongated:?}"
-    );
+    // Outside the model's domain a frame says why, renders at the top rung and does not
+    // claim the budget.
+    for name in [
+        "camera 1 m above the surface",
+        "ellipsoid of axis ratio 10",
+        "vertical DEM step",
+        "overhanging DEM step",
+        "Hapke h = 1e-6",
+    ] {
+        let b = budgeted(name);
+        assert!(
+            b.outside_model.is_some() && !b.meets_budget && b.points_per_pixel == 16.0,
+            "{name}: {b:?}"
+        );
+    }
+    assert!(budgeted("flat DEM").outside_model.is_none());
 }

@@ -89,6 +89,8 @@ pub struct Budgeted {
     /// What the frame said of itself: its predicted error and whether that meets the budget.
     pub predicted: (f64, f64, f64),
     pub meets_budget: bool,
+    /// Why the frame lies outside the error model's domain, where it does.
+    pub outside_model: Option<&'static str>,
     /// Measured against the reference.
     pub error: FrameError,
     pub ms: f64,
@@ -587,6 +589,7 @@ fn budgeted(renderer: &mut Renderer, cfg: &Config, reference: &[f64]) -> Result<
         map_filter: format!("{:?}", plan.map_filter),
         predicted: (p.median, p.p99, p.total),
         meets_budget: plan.meets_budget,
+        outside_model: plan.outside_model,
         error: frame_error(&frame.pl, reference, frame.width, frame.height),
         ms,
     })

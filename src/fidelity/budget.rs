@@ -262,7 +262,8 @@ pub struct Plan {
     pub predicted: Predicted,
     /// Whether the prediction meets the budget (false: no rung is predicted to meet it; the
     /// frame is rendered at the cheapest rung that meets the figures some rung can meet and
-    /// comes within 1.5x of the ladder's best prediction on the others, else the top rung).
+    /// comes within 1.5x of the ladder's best prediction on the others, else the top rung;
+    /// or the frame is outside the model's domain, `outside_model`).
     pub meets_budget: bool,
     /// Why the frame lies outside what the error model was fitted on, where it does
     /// ([`Planner::outside_model`]): its prediction is then an extrapolation, the frame is

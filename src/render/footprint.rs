@@ -380,18 +380,6 @@ impl Step<'_> {
         }
     }
 
-    /// What each of `band.reads` shows under `MapFilter::Relief`, into `band.relief`, and
-    /// its lit share by its own shadow rays, into `band.lit`.
-    fn read_each(&self, band: &mut Band, (relief, shadows): (&Relief, SelfShadowing)) {
-        band.relief.clear();
-        band.lit.clear();
-        for &at in &band.reads {
-            let read = self.relief_read(relief, shadows, at);
-            band.lit.push(read.lit());
-            band.relief.push(read);
-        }
-    }
-
     /// A pixel's factor under `MapFilter::Relief` from its reads, `band.reads` (map
     /// coordinates, each standing for `read_rad` of the surface), spread evenly over the
     /// pixel's image, what each shows (`band.relief`) and its lit share (`band.lit`): the
@@ -567,18 +555,47 @@ impl Step<'_> {
         let w = band.width;
         let k = CAST as f64;
         if let Some(shading) = self.shading {
-            band.reads.clear();
+            // The reads on a `CAST x CAST` lattice over the pixel (`None` where the line of
+            // sight misses the body), a shadow's edge placed between them as over a block
+            // ([`lit_shares`]); the block's lattice is free (a lone pixel builds none).
+            band.lattice.clear();
+            band.lattice_at.clear();
+            band.lattice_lit.clear();
             // The reads' footprint: the first hit's (it changes little within a pixel).
             let mut read_rad = None;
             for j in 0..CAST * CAST {
                 let (a, b) = ((j % CAST) as f64, (j / CAST) as f64);
                 let p = self.probe(i as f64 + (a + 0.5) / k, v - 0.5 + (b + 0.5) / k);
-                if p.hit {
+                band.lattice_at.push((p.lon, p.lat));
+                let read = p.hit.then(|| {
                     read_rad.get_or_insert(p.footprint_rad / k);
-                    band.reads.push((p.lon, p.lat));
+                    self.relief_read(shading.0, shading.1, (p.lon, p.lat))
+                });
+                band.lattice_lit
+                    .push(read.as_ref().map_or(0.0, ReliefRead::lit));
+                band.lattice.push(read);
+            }
+            if shading.1 == SelfShadowing::RayMarching {
+                lit_shares(
+                    shading.0,
+                    &mut band.lattice,
+                    &band.lattice_at,
+                    (CAST, CAST),
+                    &mut band.lattice_lit,
+                    &mut band.crossings,
+                );
+            }
+            band.reads.clear();
+            band.relief.clear();
+            band.lit.clear();
+            for (j, read) in band.lattice.iter().enumerate() {
+                if let Some(read) = read {
+                    band.reads.push(band.lattice_at[j]);
+                    band.relief.push(*read);
+                    band.lit.push(band.lattice_lit[j]);
                 }
             }
-            self.read_each(band, shading);
+            band.lattice.clear();
             let got = self.relief_pixel(band, read_rad.unwrap_or(0.0), None, CAST * CAST);
             if got.read {
                 self.set_relief_pixel(band, &got, i, r);

@@ -558,33 +558,19 @@ impl Step<'_> {
             // The reads on a `CAST x CAST` lattice over the pixel (`None` where the line of
             // sight misses the body), a shadow's edge placed between them as over a block
             // ([`lit_shares`]); the block's lattice is free (a lone pixel builds none).
-            band.lattice.clear();
-            band.lattice_at.clear();
-            band.lattice_lit.clear();
+            band.clear_lattice();
             // The reads' footprint: the first hit's (it changes little within a pixel).
             let mut read_rad = None;
             for j in 0..CAST * CAST {
                 let (a, b) = ((j % CAST) as f64, (j / CAST) as f64);
                 let p = self.probe(i as f64 + (a + 0.5) / k, v - 0.5 + (b + 0.5) / k);
-                band.lattice_at.push((p.lon, p.lat));
                 let read = p.hit.then(|| {
                     read_rad.get_or_insert(p.footprint_rad / k);
                     self.relief_read(shading.0, shading.1, (p.lon, p.lat))
                 });
-                band.lattice_lit
-                    .push(read.as_ref().map_or(0.0, ReliefRead::lit));
-                band.lattice.push(read);
+                band.push_read((p.lon, p.lat), read);
             }
-            if shading.1 == SelfShadowing::RayMarching {
-                lit_shares(
-                    shading.0,
-                    &mut band.lattice,
-                    &band.lattice_at,
-                    (CAST, CAST),
-                    &mut band.lattice_lit,
-                    &mut band.crossings,
-                );
-            }
+            band.place_edges(shading, (CAST, CAST));
             band.reads.clear();
             band.relief.clear();
             band.lit.clear();
@@ -722,6 +708,38 @@ struct Band<'a> {
     estimate: &'a mut [f64],
 }
 
+impl Band<'_> {
+    /// Starts a lattice of reads.
+    fn clear_lattice(&mut self) {
+        self.lattice.clear();
+        self.lattice_at.clear();
+        self.lattice_lit.clear();
+    }
+
+    /// A read of the lattice being built: where, and what it shows (`None`: not read).
+    fn push_read(&mut self, at: (f64, f64), read: Option<ReliefRead>) {
+        self.lattice_at.push(at);
+        self.lattice_lit
+            .push(read.as_ref().map_or(0.0, ReliefRead::lit));
+        self.lattice.push(read);
+    }
+
+    /// The lattice's (`(columns, rows)`) lit shares across the shadows' edges between its
+    /// reads ([`lit_shares`]), under ray marching.
+    fn place_edges(&mut self, (relief, shadows): (&Relief, SelfShadowing), grid: (usize, usize)) {
+        if shadows == SelfShadowing::RayMarching {
+            lit_shares(
+                relief,
+                &mut self.lattice,
+                &self.lattice_at,
+                grid,
+                &mut self.lattice_lit,
+                &mut self.crossings,
+            );
+        }
+    }
+}
+
 impl Step<'_> {
     /// The reads of the block of pixels `(x0, y0)` to `(x1, y1)` (band rows, exclusive; map
     /// coordinates bilinear in `lon`, `lat` over `n` px) under `MapFilter::Relief`: `(ns, nt)`
@@ -745,9 +763,7 @@ impl Step<'_> {
     ) {
         let (lw, lh) = ((x1 - x0) * ns, (y1 - y0) * nt);
         let w = band.width;
-        band.lattice.clear();
-        band.lattice_at.clear();
-        band.lattice_lit.clear();
+        band.clear_lattice();
         for jy in 0..lh {
             let (r, b) = (y0 + jy / nt, jy % nt);
             let t = (r - y0) as f64 / n;
@@ -757,25 +773,13 @@ impl Step<'_> {
                 let o = |k: usize, m: usize| ((k as f64 + 0.5) / m as f64 - 0.5) / n;
                 let (u, v) = (s + o(a, ns), t + o(b, nt));
                 let at = (lerp(lon, u, v), lerp(lat, u, v));
-                band.lattice_at.push(at);
                 let skip = band.pixels.iter().all(|img| img[r * w + i] == 0.0)
                     && lerp(mu0, s, t) + mu0_per_px <= 0.0;
                 let read = (!skip).then(|| self.relief_read(shading.0, shading.1, at));
-                band.lattice_lit
-                    .push(read.as_ref().map_or(0.0, ReliefRead::lit));
-                band.lattice.push(read);
+                band.push_read(at, read);
             }
         }
-        if shading.1 == SelfShadowing::RayMarching {
-            lit_shares(
-                shading.0,
-                &mut band.lattice,
-                &band.lattice_at,
-                (lw, lh),
-                &mut band.lattice_lit,
-                &mut band.crossings,
-            );
-        }
+        band.place_edges(shading, (lw, lh));
     }
 
     /// Scales the pixels of the block of `size` px whose top-left pixel is `(x0, y0)` (band

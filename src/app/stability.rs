@@ -675,9 +675,10 @@ pub fn markdown(reports: &[CaseReport], work: &Path) -> String {
           Each case that renders, rendered again as `fidelity = \"budget\"` plans it (the\n\
           default budget, the shipped error model): the settings it chose (quadrangles per\n\
           pixel, 0 for a ray-cast frame; self-shadowing; map filter), the error it predicted\n\
-          for itself and whether that meets the budget (\"said\"), and the error measured\n\
-          against the same reference. A frame is within the budget or says it is not; one over\n\
-          it that said it met it (**silent**) fails the test.\n\n\
+          for itself and whether that meets the budget (\"said\"; outside the error model's\n\
+          domain, why), and the error measured against the same reference. A frame is within\n\
+          the budget or says it is not; one over it that said it met it (**silent**) fails\n\
+          the test.\n\n\
           | case | settings | predicted median / p99 / total | said | measured median / p99 / total | budget | ms |\n\
           | --- | --- | --- | --- | --- | --- | --- |\n";
     for r in reports {
@@ -693,7 +694,11 @@ pub fn markdown(reports: &[CaseReport], work: &Path) -> String {
             pm,
             pp,
             pt,
-            if b.meets_budget { "meets" } else { "over" },
+            match (b.meets_budget, b.outside_model) {
+                (true, _) => "meets".to_string(),
+                (false, Some(why)) => format!("over: {why}"),
+                (false, None) => "over".to_string(),
+            },
             e.median,
             e.p99,
             e.total,

@@ -1081,28 +1081,26 @@ fn lit_shares(
     // (NaN where none).
     crossings.clear();
     crossings.resize(4 * n, f64::NAN);
+    // The edge's distances from read `j` [spacings] along the lattice's rows (before it,
+    // after it) and columns, for `ray` (NaN where no edge).
+    let distances = |crossings: &[f64], ray: usize, j: usize| {
+        let right = &crossings[(2 * ray) * n..(2 * ray + 1) * n];
+        let down = &crossings[(2 * ray + 1) * n..(2 * ray + 2) * n];
+        let before = |c: &[f64], q: Option<usize>| q.map_or(f64::NAN, |q| 1.0 - c[q]);
+        (
+            [before(right, (j % ns > 0).then(|| j - 1)), right[j]],
+            [before(down, (j >= ns).then(|| j - ns)), down[j]],
+        )
+    };
     let mut any = false;
     for ray in 0..2 {
         if ray == 1 {
             // A read in the Sun's shadow beside its edge needs the camera's answer too.
             for j in 0..n {
-                let beside = [
-                    crossings[j],
-                    crossings[n + j],
-                    if j % ns > 0 {
-                        crossings[j - 1]
-                    } else {
-                        f64::NAN
-                    },
-                    if j >= ns {
-                        crossings[n + j - ns]
-                    } else {
-                        f64::NAN
-                    },
-                ];
+                let (x, y) = distances(crossings, 0, j);
                 if let Some(r) = &mut reads[j]
                     && !r.camera_asked
-                    && beside.iter().any(|d| !d.is_nan())
+                    && x.iter().chain(&y).any(|d| !d.is_nan())
                 {
                     let up = crate::geometry::unit_from_lon_lat(at[j].0, at[j].1);
                     r.hidden[1] = relief.occluded(up, r.c);
@@ -1140,18 +1138,12 @@ fn lit_shares(
         let Some(rj) = reads[j].as_ref().filter(|r| r.k > 0.0) else {
             continue;
         };
-        let (a, b) = (j % ns, j / ns);
         let mut share = 1.0;
         for ray in 0..2 {
             if ray == 1 && !rj.camera_asked {
                 continue; // in the Sun's shadow's depth: its share is 0 already
             }
-            let right = &crossings[(2 * ray) * n..(2 * ray + 1) * n];
-            let down = &crossings[(2 * ray + 1) * n..(2 * ray + 2) * n];
-            // The edge's distances from the read [spacings], each way along each axis.
-            let before = |c: &[f64], q: Option<usize>| q.map_or(f64::NAN, |q| 1.0 - c[q]);
-            let x = [before(right, (a > 0).then(|| j - 1)), right[j]];
-            let y = [before(down, (b > 0).then(|| j - ns)), down[j]];
+            let (x, y) = distances(crossings, ray, j);
             let own = if x.iter().chain(&y).all(|d| d.is_nan()) {
                 1.0
             } else if x.iter().all(|d| !d.is_nan()) || y.iter().all(|d| !d.is_nan()) {

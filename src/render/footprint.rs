@@ -87,7 +87,7 @@
 //! is placed between them by halving ([`EDGE_HALVINGS`]) and each read beside it takes the
 //! share of its cell on its own side ([`lit_shares`]), an edge between two pixels' reads
 //! included: the apolune frame's p99 0.111 -> 0.084, NRHO row 493's terminator window's
-//! 1.0 -> 0.245, for 4 % of the budgeted file's median frame (`docs/performance.md`, "A
+//! 1.0 -> 0.245, for 9 % of the budgeted file's median frame (`docs/performance.md`, "A
 //! shadow's edge between the reads").
 //!
 //! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
@@ -1022,7 +1022,7 @@ fn lit_or_brightest<'p>(first: &'p Probe, others: &'p [Probe]) -> &'p Probe {
 /// the edge between them ([`lit_shares`]): to 1/16 of the spacing. NRHO row 493's
 /// terminator window (128 x 128) at 1, 2 and 3 halvings: p99 0.34, 0.28, 0.245, p95 8.3e-2,
 /// 6.1e-2, 5.5e-2; the budgeted file's median frame 5, 7.5 and 10 % slower than without
-/// the shares (5 NRHO frames; the 25-frame bench: 4 %). More halvings measured no better.
+/// the shares (5 NRHO frames; the 25-frame bench: 9 %). More halvings measured no better.
 const EDGE_HALVINGS: u32 = 3;
 
 /// The lit share of each read of a lattice (`reads`, at map coordinates `at`, `(ns, nt)`

@@ -99,14 +99,18 @@ pub struct Budgeted {
 impl Budgeted {
     /// Within [`BUDGET`] (median, p99, total) as measured.
     pub fn within(&self) -> bool {
-        let e = &self.error;
-        e.median <= BUDGET.0 && e.p99 <= BUDGET.1 && e.total <= BUDGET.2
+        within_budget(&self.error)
     }
 
     /// Within the budget, or the frame said it would not be.
     pub fn honest(&self) -> bool {
         self.within() || !self.meets_budget
     }
+}
+
+/// Whether `e` is within [`BUDGET`] (median, p99, total).
+fn within_budget(e: &FrameError) -> bool {
+    e.median <= BUDGET.0 && e.p99 <= BUDGET.1 && e.total <= BUDGET.2
 }
 
 /// One case: its name, scene text (a full scene TOML), and what to do to the pose after
@@ -443,9 +447,7 @@ fn run_case(case: Case, limit: Duration, dir: &Path) -> CaseReport {
         case: name.clone(),
         expected,
         budgeted,
-        within_budget: error
-            .as_ref()
-            .map(|e| e.median <= BUDGET.0 && e.p99 <= BUDGET.1 && e.total <= BUDGET.2),
+        within_budget: error.as_ref().map(within_budget),
         outcome,
         energy,
         error,

@@ -384,9 +384,9 @@ impl Step<'_> {
     /// coordinates, each standing for `read_rad` of the surface), spread evenly over the
     /// pixel's image, what each shows (`band.relief`) and its lit share (`band.lit`): the
     /// relief's light over the smooth shape's at the reference scale, both summed over the
-    /// reads, per map, into `band.sums`. Where no read sees the smooth shape
-    /// lit (a pixel the quadrangles' light spills into), the map alone: its mean over the
-    /// reads. False where there is no read.
+    /// reads, per map, into `band.sums`. Where no read sees the smooth shape lit (a pixel
+    /// the quadrangles' light spills into), the map alone: its mean over the reads. False
+    /// where there is no read.
     ///
     /// Every read's shadows are its own: marching a pixel's corners, edges' middles and
     /// centre first and giving the other reads their answer where those agreed made the
@@ -408,13 +408,11 @@ impl Step<'_> {
         // fallback).
         band.sums.iter_mut().for_each(|x| *x = 0.0);
         band.squares.iter_mut().for_each(|x| *x = 0.0);
-        let reads = std::mem::take(&mut band.reads);
-        let got = std::mem::take(&mut band.relief);
         let mut smooth = 0.0;
         // The first map's light and the smooth shape's over the coarser grid.
         let (mut coarse_light, mut coarse_smooth, mut coarse_count) = (0.0, 0.0, 0usize);
         let mut near_night = false;
-        for (j, (read, &(lon, lat))) in got.iter().zip(&reads).enumerate() {
+        for (j, (read, &(lon, lat))) in band.relief.iter().zip(&band.reads).enumerate() {
             smooth += read.smooth;
             near_night |= read.seen && read.mu0_shape < MU0_ABSOLUTE;
             let share = band.lit[j];
@@ -442,9 +440,7 @@ impl Step<'_> {
                 }
             }
         }
-        band.relief = got;
-        let count = reads.len() as f64;
-        band.reads = reads;
+        let count = band.reads.len() as f64;
         // The pixel's factor, from all the reads and from the coarse quarter: near the
         // terminator the light per unit of solid angle (the pixel's misses counted as dark),
         // else the ratio to the smooth shape's light.
@@ -743,7 +739,7 @@ impl Band<'_> {
 impl Step<'_> {
     /// The reads of the block of pixels `(x0, y0)` to `(x1, y1)` (band rows, exclusive; map
     /// coordinates bilinear in `lon`, `lat` over `n` px) under `MapFilter::Relief`: `(ns, nt)`
-    /// per pixel, at midpoints of one lattice over the block, into `band.lattice` (`None`
+    /// per pixel at `band.offsets`, the midpoints of one lattice over the block, into `band.lattice` (`None`
     /// for a pixel that is dark and whose interpolated `mu0`, with `mu0_per_px` of margin,
     /// says it is on the night side), each with its lit share ([`lit_shares`], edges
     /// between the reads of neighbouring pixels included; under the horizon map, each
@@ -770,8 +766,8 @@ impl Step<'_> {
             for jx in 0..lw {
                 let (i, a) = (x0 + jx / ns, jx % ns);
                 let s = (i - x0) as f64 / n;
-                let o = |k: usize, m: usize| ((k as f64 + 0.5) / m as f64 - 0.5) / n;
-                let (u, v) = (s + o(a, ns), t + o(b, nt));
+                let (du, dv) = band.offsets[b * ns + a];
+                let (u, v) = (s + du, t + dv);
                 let at = (lerp(lon, u, v), lerp(lat, u, v));
                 let skip = band.pixels.iter().all(|img| img[r * w + i] == 0.0)
                     && lerp(mu0, s, t) + mu0_per_px <= 0.0;

@@ -267,7 +267,7 @@ impl DemHorizon {
 
 /// Per texel, the tangent of the steepest slope within `reach_rad` of arc: the steepest
 /// one-sided differences east-west and north-south [m/m] combined, then the largest over a
-/// window of that reach in latitude and (wider towards the poles) in longitude.
+/// window of that reach ([`super::pyramid::window_max`]).
 fn reach_slope(heights: &Map, radius_m: f64, reach_rad: f64) -> Vec<f32> {
     let (w, h) = (heights.width, heights.height);
     let (dlon, dlat) = heights.spacing_rad();
@@ -289,50 +289,7 @@ fn reach_slope(heights: &Map, radius_m: f64, reach_rad: f64) -> Vec<f32> {
             slope[r * w + c] = x.hypot(y) as f32;
         }
     }
-    // Along each row, a window of the reach in longitude.
-    let mut rows = vec![0.0f32; w * h];
-    for r in 0..h {
-        // The widest longitude span of an arc of the reach that passes through this row
-        // starting within the reach of it (a texel more for the bilinear footprint).
-        let lat = (heights.row_lat(r).abs() + reach_rad).min(std::f64::consts::FRAC_PI_2);
-        let s = reach_rad.sin() / lat.cos().max(1e-12);
-        let half = if s >= 1.0 {
-            w
-        } else {
-            ((s.asin() / dlon).ceil() as usize + 1).min(w)
-        };
-        let row = &slope[r * w..(r + 1) * w];
-        let out = &mut rows[r * w..(r + 1) * w];
-        if 2 * half + 1 >= w {
-            out.fill(row.iter().cloned().fold(0.0, f32::max));
-            continue;
-        }
-        for (c, o) in out.iter_mut().enumerate() {
-            let mut m = 0.0f32;
-            for k in 0..=2 * half {
-                let cc = c as isize + k as isize - half as isize;
-                let cc = if wraps {
-                    cc.rem_euclid(w as isize) as usize
-                } else if cc < 0 || cc >= w as isize {
-                    continue;
-                } else {
-                    cc as usize
-                };
-                m = m.max(row[cc]);
-            }
-            *o = m;
-        }
-    }
-    // Then across rows, a window of the reach in latitude.
-    let half = (reach_rad / dlat).ceil() as usize + 1;
-    let mut out = vec![0.0f32; w * h];
-    for r in 0..h {
-        let (r0, r1) = (r.saturating_sub(half), (r + half).min(h - 1));
-        for c in 0..w {
-            out[r * w + c] = (r0..=r1).map(|rr| rows[rr * w + c]).fold(0.0, f32::max);
-        }
-    }
-    out
+    super::pyramid::window_max(&slope, heights, reach_rad)
 }
 
 /// Two caches are equal when they would hold the same values for equal DEMs.

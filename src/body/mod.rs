@@ -233,6 +233,10 @@ pub struct Relief {
     /// bounds of a marched ray's dips ([`Relief::dips`]).
     cell_slope: std::sync::Arc<Vec<f32>>,
     max_cell_slope: f64,
+    /// Per cell of a global DEM, the steepest of [`Relief::cell_slope`] within the arc
+    /// beyond which a rising ray from the ground clears the highest point
+    /// ([`pyramid::window_max`]); `None` for a regional DEM.
+    reach_slope: Option<std::sync::Arc<Vec<f32>>>,
     /// Ray-marching step [m]: a quarter texel in latitude.
     step_m: f64,
     /// Block maxima of a global DEM (`None` for a regional one), over which a marched ray
@@ -367,6 +371,14 @@ impl Relief {
         let pyramid =
             pyramid::MaxPyramid::new(&heights_m, radius_m, &cell_slope).map(std::sync::Arc::new);
         let max_cell_slope = cell_slope.iter().fold(0.0f64, |a, &b| a.max(b as f64));
+        // A ray rising from the ground (at least the lowest point's radius) is above the
+        // tangent plane there, which is above the highest point beyond this arc.
+        let clear_arc = ((radius_m + bottom_m) / (radius_m + top_m))
+            .clamp(-1.0, 1.0)
+            .acos();
+        let reach_slope = pyramid
+            .is_some()
+            .then(|| std::sync::Arc::new(pyramid::window_max(&cell_slope, &heights_m, clear_arc)));
         Ok(Relief {
             slope_east: slope(east)?,
             slope_north: slope(north)?,
@@ -378,6 +390,7 @@ impl Relief {
             steep_slope,
             cell_slope: std::sync::Arc::new(cell_slope),
             max_cell_slope,
+            reach_slope,
             step_m: 0.25 * radius_m * dlat,
             pyramid,
             horizon_sin: None,
@@ -467,7 +480,9 @@ impl Relief {
         self.march(up, toward, true)
     }
 
-    /// [`Relief::occluded`], with the pyramid's leaps (`leaps`) or without: the points are
+    /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray rising
+    /// more steeply than every slope within its reach is clear at once,
+    /// [`Relief::clears_reach`]; the pyramid's leaps) or without: the points are
     /// those of one sequence (the start, the near field's [`NEAR_FIELD_STEPS`], then step `n`
     /// at `n` steps from the start). A leap skips the points of the sequence within the reach
     /// over which the ray clears the highest ground, tests the last of them, and checks no
@@ -483,6 +498,9 @@ impl Relief {
             return false;
         }
         let (lon, lat) = crate::geometry::lon_lat(up);
+        if leaps && self.clears_reach(lon, lat, rise) {
+            return false;
+        }
         let h0 = self.heights_m.sample(lon, lat).unwrap_or(0.0);
         // The ray leaves the ground SHADOW_RAY_LIFT above it, as the reference's does.
         let lift = SHADOW_RAY_LIFT * self.radius_m;
@@ -583,6 +601,31 @@ impl Relief {
             }
             (prev, j) = (p, j + 1);
         }
+    }
+
+    /// The steepest slope a ray rising from the ground at `(lon, lat)` can pass over before
+    /// it clears the highest point ([`Relief::reach_slope`]), per metre of arc at the lowest
+    /// radius: a ray rising more steeply than that, by the tangent of its elevation, is never
+    /// below the ground, since the ground under it rises more slowly than it does
+    /// ([`pyramid::MaxPyramid::rise_clear`]'s argument, out to the arc where nothing is
+    /// higher). The steepest cell anywhere for a regional DEM.
+    fn slope_within_reach(&self, lon: f64, lat: f64) -> f64 {
+        let Some(reach) = self.reach_slope.as_deref() else {
+            return self.max_cell_slope;
+        };
+        let (w, h) = (self.heights_m.width as i64, self.heights_m.height as i64);
+        let (x, y) = self.heights_m.texel_coords(lon, lat);
+        let r = crate::geometry::floor_i64(y).clamp(0, h - 1);
+        let c = crate::geometry::floor_i64(x).rem_euclid(w);
+        reach[(r * w + c) as usize] as f64
+    }
+
+    /// Whether a ray from the ground at `(lon, lat)`, rising by `rise` (the sine of its
+    /// elevation), rises more steeply than [`Relief::slope_within_reach`] (with a margin of
+    /// a thousandth): then nothing can hide it.
+    fn clears_reach(&self, lon: f64, lat: f64, rise: f64) -> bool {
+        let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
+        rise > 0.0 && rise > 1.001 * self.slope_within_reach(lon, lat) * horizontal
     }
 
     /// The lowest gap between the chord of a marched ray from its point `a` to `b` and the

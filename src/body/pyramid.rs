@@ -267,6 +267,61 @@ pub(crate) fn cell_slopes(map: &Map, bottom_radius_m: f64) -> Vec<f32> {
     slope
 }
 
+/// Per texel of `map`'s grid, the largest of `values` (one per texel or per cell, on that
+/// grid) over every texel a point within `reach_rad` of arc from it can lie beside: a window
+/// of the reach in latitude and, wider towards the poles, in longitude (the widest span of
+/// longitude an arc of the reach crossing the row can cover, whole rows where it can pass
+/// over a pole), a texel more on each side for the bilinear footprint. A regional map's
+/// windows stop at its edges.
+pub(crate) fn window_max(values: &[f32], map: &Map, reach_rad: f64) -> Vec<f32> {
+    use rayon::prelude::*;
+    let (w, h) = (map.width, map.height);
+    let dlon = map.spacing_rad().0;
+    let dlat = map.spacing_rad().1;
+    let wraps = map.wraps();
+    // Along each row, a window of the reach in longitude.
+    let mut rows = vec![0.0f32; w * h];
+    rows.par_chunks_mut(w).enumerate().for_each(|(r, out)| {
+        let lat = (map.row_lat(r).abs() + reach_rad).min(std::f64::consts::FRAC_PI_2);
+        let s = reach_rad.sin() / lat.cos().max(1e-12);
+        let half = if s >= 1.0 {
+            w
+        } else {
+            ((s.asin() / dlon).ceil() as usize + 1).min(w)
+        };
+        let row = &values[r * w..(r + 1) * w];
+        if 2 * half + 1 >= w {
+            out.fill(row.iter().cloned().fold(0.0, f32::max));
+            return;
+        }
+        for (c, o) in out.iter_mut().enumerate() {
+            let mut m = 0.0f32;
+            for k in 0..=2 * half {
+                let cc = c as isize + k as isize - half as isize;
+                let cc = if wraps {
+                    cc.rem_euclid(w as isize) as usize
+                } else if cc < 0 || cc >= w as isize {
+                    continue;
+                } else {
+                    cc as usize
+                };
+                m = m.max(row[cc]);
+            }
+            *o = m;
+        }
+    });
+    // Then across rows, a window of the reach in latitude.
+    let half = (reach_rad / dlat).ceil() as usize + 1;
+    let mut out = vec![0.0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(r, out)| {
+        let (r0, r1) = (r.saturating_sub(half), (r + half).min(h - 1));
+        for (c, o) in out.iter_mut().enumerate() {
+            *o = (r0..=r1).map(|rr| rows[rr * w + c]).fold(0.0, f32::max);
+        }
+    });
+    out
+}
+
 /// The maxima of `values` (`w x h`) over blocks of 2 x 2 (the last block of an odd count
 /// covers one).
 fn block_max(values: &[f32], w: usize, h: usize) -> Vec<f32> {
@@ -341,8 +396,9 @@ mod tests {
 
     /// Plains with a few steep craters' rims and a polar cap of hills, on a global 1440 x 720
     /// grid (the LOLA map's): the leaps, from the ground by slope and in the air by height,
-    /// change no answer of the pipeline's marcher, displaced or not, and both kinds of leap
-    /// do happen.
+    /// change no answer of the pipeline's marcher, displaced or not, nor does clearing a ray
+    /// at once that rises more steeply than every slope within its reach; and all three
+    /// shortcuts do happen.
     #[test]
     fn the_marchers_leaps_change_no_answer() {
         let (w, h) = (1440usize, 720usize);
@@ -381,7 +437,7 @@ mod tests {
         for displaces in [false, true] {
             let relief = Relief::new(dem.clone(), radius, displaces).unwrap();
             let p = relief.pyramid().expect("a global DEM");
-            let (mut from_ground, mut in_air, mut shadowed) = (0, 0, 0);
+            let (mut from_ground, mut in_air, mut shadowed, mut at_once) = (0, 0, 0, 0);
             for k in 0..6000 {
                 let u = |j: usize| hash(k * 11 + j) * 2.0 - 1.0;
                 // A fifth near a pole, half on a crater (where slopes are steep), the rest
@@ -424,15 +480,16 @@ mod tests {
                 let fast = relief.march(up, toward, true);
                 assert_eq!(fast, relief.march(up, toward, false), "ray {k}");
                 shadowed += fast as usize;
+                at_once += relief.clears_reach(lon, lat, elev.sin()) as usize;
                 let at = RayPoint { up, lon, lat };
                 from_ground += (p.rise_clear(&dem, &at, elev.sin()) > relief.step_m) as usize;
                 let start = up * (radius + 5000.0);
                 in_air += (p.leap(&dem, start, toward, 0.0, &at) > relief.step_m) as usize;
             }
             assert!(
-                shadowed > 300 && from_ground > 1000 && in_air > 1000,
+                shadowed > 300 && from_ground > 1000 && in_air > 1000 && at_once > 1000,
                 "displaces {displaces}: {shadowed} shadowed, {from_ground} leaps from the \
-                 ground, {in_air} in the air"
+                 ground, {in_air} in the air, {at_once} clear at once"
             );
         }
     }

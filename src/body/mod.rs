@@ -557,7 +557,7 @@ impl Relief {
         };
         // The last point of the sequence at or before `t`.
         let last_within = |t: f64| -> Option<usize> {
-            let steps = (t / self.step_m).floor();
+            let steps = crate::geometry::floor_i64(t / self.step_m) as f64;
             if steps >= 1.0 {
                 Some(near - 1 + steps as usize)
             } else {
@@ -654,7 +654,7 @@ impl Relief {
         let mut n = 2;
         for (from, d) in [(xa, dx), (ya, dy)] {
             let (lo, hi) = (from.min(from + d), from.max(from + d));
-            let mut edge = lo.floor() + 1.0;
+            let mut edge = crate::geometry::floor_i64(lo) as f64 + 1.0;
             while edge < hi {
                 if n == ends.len() {
                     return None;
@@ -672,8 +672,8 @@ impl Relief {
         for piece in ends.windows(2) {
             let (u0, u1) = (piece[0], piece[1]);
             let mid = 0.5 * (u0 + u1);
-            let c = (xa + dx * mid).floor();
-            let r = (ya + dy * mid).floor();
+            let c = crate::geometry::floor_i64(xa + dx * mid) as f64;
+            let r = crate::geometry::floor_i64(ya + dy * mid) as f64;
             let (row, col) = (r as usize, c as i64);
             let (v00, v01) = (v(row, col), v(row, col + 1));
             let (v10, v11) = (v(row + 1, col), v(row + 1, col + 1));
@@ -706,8 +706,8 @@ impl Relief {
         let (w, h) = (map.width as i64, map.height as i64);
         let (xa, ya) = (a.x, a.y);
         let (xb, yb) = (self.same_turn(xa, b.x), b.y);
-        let (x0, x1) = (xa.min(xb).floor() as i64, xa.max(xb).floor() as i64);
-        let (y0, y1) = (ya.min(yb).floor() as i64, ya.max(yb).floor() as i64);
+        let (x0, x1) = (crate::geometry::floor_i64(xa.min(xb)), crate::geometry::floor_i64(xa.max(xb)));
+        let (y0, y1) = (crate::geometry::floor_i64(ya.min(yb)), crate::geometry::floor_i64(ya.max(yb)));
         let inside = y0 >= 0 && y1 < h - 1 && (map.wraps() || (x0 >= 0 && x1 < w - 1));
         if inside && (x1 - x0 + 1) * (y1 - y0 + 1) <= 16 {
             let mut most = 0.0f32;

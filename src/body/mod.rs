@@ -535,7 +535,7 @@ impl Relief {
             if r < floor {
                 return (Some(true), probe(f64::NEG_INFINITY, at, (0.0, 0.0)));
             }
-            let (lon, lat) = crate::geometry::lon_lat(at.up);
+            let (lon, lat) = crate::geometry::lon_lat_fast(q);
             let at = pyramid::RayPoint { lon, lat, ..at };
             let xy = self.heights_m.texel_coords(lon, lat);
             match self.heights_m.sample(lon, lat) {

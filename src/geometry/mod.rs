@@ -77,6 +77,58 @@ pub fn lon_lat_unit(v: DVec3) -> (f64, f64) {
     (v.y.atan2(v.x), v.z.clamp(-1.0, 1.0).asin())
 }
 
+/// `atan2(y, x)` as Cephes computes it (Moshier's `atan`: the argument reduced to
+/// `[0, 0.66]` by `pi/4` or `pi/2`, then a rational function of degree 4 over 5; relative
+/// error 1.8e-16 peak), about twice as fast here as the system's `atan2` with which it
+/// agrees to a few units in the last place (`tests::the_fast_arctangent_agrees_with_libm`).
+/// For the marcher's lookups, where a point's position matters to a micrometre.
+#[inline]
+pub fn atan2_fast(y: f64, x: f64) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+    const T3P8: f64 = 2.414_213_562_373_095; // tan(3 pi / 8)
+    const MOREBITS: f64 = 6.123_233_995_736_766e-17;
+    const P: [f64; 5] = [
+        -8.750_608_600_031_904e-1,
+        -1.615_753_718_733_365e1,
+        -7.500_855_792_314_705e1,
+        -1.228_866_684_490_136e2,
+        -6.485_021_904_942_025e1,
+    ];
+    const Q: [f64; 5] = [
+        2.485_846_490_142_306e1,
+        1.650_270_098_316_988e2,
+        4.328_810_604_912_903e2,
+        4.853_903_996_359_137e2,
+        1.945_506_571_482_614e2,
+    ];
+    if x == 0.0 && y == 0.0 || x.is_nan() || y.is_nan() || x.is_infinite() || y.is_infinite()
+    {
+        return y.atan2(x);
+    }
+    let t = (y / x).abs();
+    let (base, u, more) = if t > T3P8 {
+        (FRAC_PI_2, -1.0 / t, MOREBITS)
+    } else if t <= 0.66 {
+        (0.0, t, 0.0)
+    } else {
+        (FRAC_PI_4, (t - 1.0) / (t + 1.0), 0.5 * MOREBITS)
+    };
+    let z = u * u;
+    let p = (((P[0] * z + P[1]) * z + P[2]) * z + P[3]) * z + P[4];
+    let q = ((((z + Q[0]) * z + Q[1]) * z + Q[2]) * z + Q[3]) * z + Q[4];
+    let a = base + (u * (z * p / q) + u + more);
+    // `a` is the angle in [0, pi/2] of (|x|, |y|).
+    let a = if x < 0.0 { PI - a } else { a };
+    if y < 0.0 { -a } else { a }
+}
+
+/// [`lon_lat`] of a vector by [`atan2_fast`], lon in (-pi, pi].
+#[inline]
+pub fn lon_lat_fast(v: DVec3) -> (f64, f64) {
+    let xy = (v.x * v.x + v.y * v.y).sqrt();
+    (atan2_fast(v.y, v.x), atan2_fast(v.z, xy))
+}
+
 /// `x.floor() as i64` for finite `x` of magnitude below 2^53, without a libm call (`floor` is
 /// not inlined on baseline x86-64 and showed in profiles).
 #[inline(always)]
@@ -161,6 +213,39 @@ impl CsfFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`atan2_fast`] against the system's `atan2` over every octant, the axes and the
+    /// reductions' bounds: within 2 units in the last place of pi (4.4e-16 rad), and
+    /// [`lon_lat_fast`] within as much of the system's arctangents. (Against [`lon_lat`]'s
+    /// `asin`, which is ill-conditioned near a pole, latitudes differ by up to 2.9e-15.)
+    #[test]
+    fn the_fast_arctangent_agrees_with_libm() {
+        let mut worst = 0.0f64;
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let special = [0.0, 1.0, -1.0, 0.66, 2.414_213_562_373_095, 1e-300, 1e300];
+        for k in 0..200_000 {
+            let (y, x) = if k < special.len() * special.len() {
+                (special[k / special.len()], special[k % special.len()])
+            } else {
+                let scale = 10f64.powf(6.0 * next());
+                (next() * scale, next())
+            };
+            if x == 0.0 && y == 0.0 {
+                continue;
+            }
+            worst = worst.max((atan2_fast(y, x) - y.atan2(x)).abs());
+            let v = DVec3::new(x, y, next() * 3.0);
+            let (a, b) = (lon_lat_fast(v), (v.y.atan2(v.x), v.z.atan2(v.x.hypot(v.y))));
+            worst = worst.max((a.0 - b.0).abs()).max((a.1 - b.1).abs());
+        }
+        assert!(worst <= 4.5e-16, "worst {worst:e} rad");
+    }
 
     #[test]
     fn look_at_puts_target_on_boresight() {

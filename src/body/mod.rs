@@ -205,10 +205,8 @@ struct RayProbe {
     t: f64,
     r: f64,
     gap: f64,
+    /// With its texel coordinates on the DEM where `gap` is finite.
     at: pyramid::RayPoint,
-    /// Its texel coordinates on the DEM ([`maps::Map::texel_coords`]).
-    x: f64,
-    y: f64,
 }
 
 /// The slopes of a DEM, as maps of `dh/d(east)` and `dh/d(north)` [m/m] on the DEM's grid,
@@ -516,34 +514,27 @@ impl Relief {
         let test = |t: f64| -> (Option<bool>, RayProbe) {
             let q = start + toward * t;
             let r = q.length();
-            let at = pyramid::RayPoint {
-                up: q / r,
-                lon: 0.0,
-                lat: 0.0,
-            };
-            let probe = |gap, at, (x, y)| RayProbe {
-                t,
-                r,
-                gap,
-                at,
-                x,
-                y,
-            };
-            if r > ceiling {
-                return (Some(false), probe(f64::INFINITY, at, (0.0, 0.0)));
-            }
-            if r < floor {
-                return (Some(true), probe(f64::NEG_INFINITY, at, (0.0, 0.0)));
+            let up = q / r;
+            let probe = |gap, at| RayProbe { t, r, gap, at };
+            if r > ceiling || r < floor {
+                let at = pyramid::RayPoint {
+                    up,
+                    lon: 0.0,
+                    lat: 0.0,
+                    x: 0.0,
+                    y: 0.0,
+                };
+                return match r > ceiling {
+                    true => (Some(false), probe(f64::INFINITY, at)),
+                    false => (Some(true), probe(f64::NEG_INFINITY, at)),
+                };
             }
             let (lon, lat) = crate::geometry::lon_lat_fast(q);
-            let at = pyramid::RayPoint { lon, lat, ..at };
-            let xy = self.heights_m.texel_coords(lon, lat);
+            let at = pyramid::RayPoint::on(&self.heights_m, up, lon, lat);
             match self.heights_m.sample(lon, lat) {
-                Some(h) if r < self.radius_m + h => {
-                    (Some(true), probe(r - self.radius_m - h, at, xy))
-                }
-                Some(h) => (None, probe(r - self.radius_m - h, at, xy)),
-                None => (None, probe(f64::INFINITY, at, xy)),
+                Some(h) if r < self.radius_m + h => (Some(true), probe(r - self.radius_m - h, at)),
+                Some(h) => (None, probe(r - self.radius_m - h, at)),
+                None => (None, probe(f64::INFINITY, at)),
             }
         };
         // The sequence's points [m from the start]: the near field, within the first step (a
@@ -564,14 +555,11 @@ impl Relief {
                 (0..near).rev().find(|&j| point(j) <= t)
             }
         };
-        let (x, y) = self.heights_m.texel_coords(lon, lat);
         let mut prev = RayProbe {
             t: 0.0,
             r: start.length(),
             gap: lift,
-            at: pyramid::RayPoint { up, lon, lat },
-            x,
-            y,
+            at: pyramid::RayPoint::on(&self.heights_m, up, lon, lat),
         };
         let mut j = 0;
         // From the ground, rising more steeply than the ground within reach: clear so far.
@@ -638,8 +626,8 @@ impl Relief {
     fn chord_over_cells(&self, a: &RayProbe, b: &RayProbe) -> Option<(f64, f64)> {
         let map = &self.heights_m;
         let (w, h) = (map.width, map.height);
-        let (xa, ya) = (a.x, a.y);
-        let (xb, yb) = (self.same_turn(xa, b.x), b.y);
+        let (xa, ya) = (a.at.x, a.at.y);
+        let (xb, yb) = (self.same_turn(xa, b.at.x), b.at.y);
         let rows = 0.0..(h - 1) as f64;
         let columns = 0.0..(w - 1) as f64;
         if !(rows.contains(&ya) && rows.contains(&yb))
@@ -704,8 +692,8 @@ impl Relief {
     fn slope_between(&self, a: &RayProbe, b: &RayProbe, s: f64) -> f64 {
         let map = &self.heights_m;
         let (w, h) = (map.width as i64, map.height as i64);
-        let (xa, ya) = (a.x, a.y);
-        let (xb, yb) = (self.same_turn(xa, b.x), b.y);
+        let (xa, ya) = (a.at.x, a.at.y);
+        let (xb, yb) = (self.same_turn(xa, b.at.x), b.at.y);
         let (x0, x1) = (crate::geometry::floor_i64(xa.min(xb)), crate::geometry::floor_i64(xa.max(xb)));
         let (y0, y1) = (crate::geometry::floor_i64(ya.min(yb)), crate::geometry::floor_i64(ya.max(yb)));
         let inside = y0 >= 0 && y1 < h - 1 && (map.wraps() || (x0 >= 0 && x1 < w - 1));

@@ -46,13 +46,25 @@ struct MaxLevel {
     band_max_m: Vec<f32>,
 }
 
-/// A point of a ray: its direction from the centre (unit) and that direction's longitude
-/// and latitude [rad].
+/// A point of a ray: its direction from the centre (unit), that direction's longitude
+/// and latitude [rad], and its texel coordinates on the map the pyramid was made of
+/// ([`Map::texel_coords`]).
 #[derive(Clone, Copy, Debug)]
 pub struct RayPoint {
     pub up: DVec3,
     pub lon: f64,
     pub lat: f64,
+    pub x: f64,
+    pub y: f64,
+}
+
+impl RayPoint {
+    /// The point over the unit direction `up`, at `(lon, lat)`, on `map`'s grid.
+    #[inline]
+    pub fn on(map: &Map, up: DVec3, lon: f64, lat: f64) -> RayPoint {
+        let (x, y) = map.texel_coords(lon, lat);
+        RayPoint { up, lon, lat, x, y }
+    }
 }
 
 /// Where a point lies on the map's grid: its texel coordinates (column wrapped) and the
@@ -66,10 +78,17 @@ struct Place {
 
 impl Place {
     fn of(map: &Map, at: &RayPoint) -> Place {
-        let (x, y) = map.texel_coords(at.lon, at.lat);
+        // `rem_euclid` without its `fmod` for the columns of longitudes in (-pi, pi], the
+        // same value.
+        let w = map.width as f64;
+        let x = match at.x {
+            x if (0.0..w).contains(&x) => x,
+            x if (-w..0.0).contains(&x) => x + w,
+            x => x.rem_euclid(w),
+        };
         Place {
-            x: x.rem_euclid(map.width as f64),
-            y,
+            x,
+            y: at.y,
             sin_lat: at.up.z.abs(),
             cos_lat: at.up.truncate().length(),
         }
@@ -481,7 +500,7 @@ mod tests {
                 assert_eq!(fast, relief.march(up, toward, false), "ray {k}");
                 shadowed += fast as usize;
                 at_once += relief.clears_reach(lon, lat, elev.sin()) as usize;
-                let at = RayPoint { up, lon, lat };
+                let at = RayPoint::on(&dem, up, lon, lat);
                 from_ground += (p.rise_clear(&dem, &at, elev.sin()) > relief.step_m) as usize;
                 let start = up * (radius + 5000.0);
                 in_air += (p.leap(&dem, start, toward, 0.0, &at) > relief.step_m) as usize;

@@ -101,7 +101,7 @@ impl Terrain {
             let h = self.heights.sample(lon, lat).unwrap_or(0.0);
             Probe {
                 gap: r - self.radius_m - h,
-                at: RayPoint { up, lon, lat },
+                at: RayPoint::on(&self.heights, up, lon, lat),
             }
         };
         let gap = |t: f64| probe(t).gap;

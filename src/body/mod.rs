@@ -198,6 +198,13 @@ pub(crate) const NEAR_FIELD_STEPS: [f64; 4] = [0.0625, 0.125, 0.25, 0.5];
 /// halved at most ([`Relief::dips`]): to 1/512 of a step.
 const DIP_HALVINGS: u32 = 9;
 
+/// Whether a ray rising by `rise` (the sine of its elevation) from the ground rises more
+/// steeply than `slope` (the ground's, per metre of arc at the lowest radius), with a margin
+/// of a thousandth: then, where `slope` bounds the ground, nothing can hide it.
+pub(crate) fn rises_above(rise: f64, slope: f64) -> bool {
+    rise > 0.0 && rise > 1.001 * slope * (1.0 - rise * rise).max(0.0).sqrt()
+}
+
 /// A point of a marched ray: its distance from the start [m], its radius [m], its gap above
 /// the ground there [m] (infinite where no height is known or above the highest point), and
 /// where it is (with its texel coordinates where the gap is finite).
@@ -480,7 +487,7 @@ impl Relief {
 
     /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray rising
     /// more steeply than every slope within its reach is clear at once,
-    /// [`Relief::clears_reach`]; the pyramid's leaps) or without: the points are
+    /// [`rises_above`] [`Relief::slope_within_reach`]; the pyramid's leaps) or without: the points are
     /// those of one sequence (the start, the near field's [`NEAR_FIELD_STEPS`], then step `n`
     /// at `n` steps from the start). A leap skips the points of the sequence within the reach
     /// over which the ray clears the highest ground, tests the last of them, and checks no
@@ -496,7 +503,7 @@ impl Relief {
             return false;
         }
         let (lon, lat) = crate::geometry::lon_lat(up);
-        if leaps && self.clears_reach(lon, lat, rise) {
+        if leaps && rises_above(rise, self.slope_within_reach(lon, lat)) {
             return false;
         }
         let h0 = self.heights_m.sample(lon, lat).unwrap_or(0.0);
@@ -593,11 +600,12 @@ impl Relief {
 
     /// The steepest slope a ray rising from the ground at `(lon, lat)` can pass over before
     /// it clears the highest point ([`Relief::reach_slope`]), per metre of arc at the lowest
-    /// radius: a ray rising more steeply than that, by the tangent of its elevation, is never
-    /// below the ground, since the ground under it rises more slowly than it does
+    /// radius: a ray rising more steeply than that, by the tangent of its elevation
+    /// ([`rises_above`]), is never below the ground, since the ground under it rises more
+    /// slowly than it does
     /// ([`pyramid::MaxPyramid::rise_clear`]'s argument, out to the arc where nothing is
     /// higher). The steepest cell anywhere for a regional DEM.
-    fn slope_within_reach(&self, lon: f64, lat: f64) -> f64 {
+    pub(crate) fn slope_within_reach(&self, lon: f64, lat: f64) -> f64 {
         let Some(reach) = self.reach_slope.as_deref() else {
             return self.max_cell_slope;
         };
@@ -606,14 +614,6 @@ impl Relief {
         let r = crate::geometry::floor_i64(y).clamp(0, h - 1);
         let c = crate::geometry::floor_i64(x).rem_euclid(w);
         reach[(r * w + c) as usize] as f64
-    }
-
-    /// Whether a ray from the ground at `(lon, lat)`, rising by `rise` (the sine of its
-    /// elevation), rises more steeply than [`Relief::slope_within_reach`] (with a margin of
-    /// a thousandth): then nothing can hide it.
-    fn clears_reach(&self, lon: f64, lat: f64, rise: f64) -> bool {
-        let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
-        rise > 0.0 && rise > 1.001 * self.slope_within_reach(lon, lat) * horizontal
     }
 
     /// The lowest gap between the chord of a marched ray from its point `a` to `b` and the
@@ -694,8 +694,14 @@ impl Relief {
         let (w, h) = (map.width as i64, map.height as i64);
         let (xa, ya) = (a.at.x, a.at.y);
         let (xb, yb) = (self.same_turn(xa, b.at.x), b.at.y);
-        let (x0, x1) = (crate::geometry::floor_i64(xa.min(xb)), crate::geometry::floor_i64(xa.max(xb)));
-        let (y0, y1) = (crate::geometry::floor_i64(ya.min(yb)), crate::geometry::floor_i64(ya.max(yb)));
+        let (x0, x1) = (
+            crate::geometry::floor_i64(xa.min(xb)),
+            crate::geometry::floor_i64(xa.max(xb)),
+        );
+        let (y0, y1) = (
+            crate::geometry::floor_i64(ya.min(yb)),
+            crate::geometry::floor_i64(ya.max(yb)),
+        );
         let inside = y0 >= 0 && y1 < h - 1 && (map.wraps() || (x0 >= 0 && x1 < w - 1));
         if inside && (x1 - x0 + 1) * (y1 - y0 + 1) <= 16 {
             let mut most = 0.0f32;

@@ -499,7 +499,8 @@ mod tests {
                 let fast = relief.march(up, toward, true);
                 assert_eq!(fast, relief.march(up, toward, false), "ray {k}");
                 shadowed += fast as usize;
-                at_once += relief.clears_reach(lon, lat, elev.sin()) as usize;
+                at_once += crate::body::rises_above(elev.sin(), relief.slope_within_reach(lon, lat))
+                    as usize;
                 let at = RayPoint::on(&dem, up, lon, lat);
                 from_ground += (p.rise_clear(&dem, &at, elev.sin()) > relief.step_m) as usize;
                 let start = up * (radius + 5000.0);

@@ -101,8 +101,7 @@ pub fn atan2_fast(y: f64, x: f64) -> f64 {
         4.853_903_996_359_137e2,
         1.945_506_571_482_614e2,
     ];
-    if x == 0.0 && y == 0.0 || x.is_nan() || y.is_nan() || x.is_infinite() || y.is_infinite()
-    {
+    if x == 0.0 && y == 0.0 || x.is_nan() || y.is_nan() || x.is_infinite() || y.is_infinite() {
         return y.atan2(x);
     }
     let t = (y / x).abs();

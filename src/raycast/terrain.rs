@@ -24,6 +24,9 @@ pub(super) struct Terrain {
     min_step_m: f64,
     /// Block maxima of a global DEM (`None` for a regional one).
     pyramid: Option<Arc<MaxPyramid>>,
+    /// The DEM's relief, for the steepest slope within a rising ray's reach
+    /// ([`Relief::slope_within_reach`], a bound on the map like the pyramid).
+    relief: Relief,
 }
 
 /// A point of a ray: its gap above the ground [m], and where it is.
@@ -55,6 +58,7 @@ impl Terrain {
             }
         }
         Terrain {
+            relief: relief.clone(),
             min_step_m: 1e-2 * r0 * dlat,
             pyramid: relief.pyramid(),
             heights: map,
@@ -63,11 +67,6 @@ impl Terrain {
             // Both slopes at once (the gradient's length) bound any direction's.
             max_slope: max_slope * std::f64::consts::SQRT_2,
         }
-    }
-
-    pub(super) fn height_at(&self, p: DVec3) -> Option<f64> {
-        let (lon, lat) = crate::geometry::lon_lat(p);
-        self.heights.sample(lon, lat)
     }
 
     /// The first `t > t0` where the ray `origin + t dir` (`dir` unit) is below the terrain
@@ -80,6 +79,12 @@ impl Terrain {
     /// over the block ([`MaxPyramid`]). A ray still above the ground after `MAX_STEPS` steps
     /// counts as meeting it.
     pub(super) fn intersect(&self, origin: DVec3, dir: DVec3, t0: f64) -> Option<f64> {
+        self.trace(origin, dir, t0, 1.0 + self.max_slope)
+    }
+
+    /// [`Terrain::intersect`] with the step `g / rate`: `rate` at least the rate at which the
+    /// ray can come nearer the ground per metre along it.
+    fn trace(&self, origin: DVec3, dir: DVec3, t0: f64, rate: f64) -> Option<f64> {
         const MAX_STEPS: usize = 1_000_000;
         let ceiling = self.radius_m + self.top_m;
         let b = origin.dot(dir);
@@ -92,12 +97,11 @@ impl Terrain {
             return None;
         }
         let hit_within = 1e-9 * self.radius_m;
-        let rate = 1.0 + self.max_slope;
         let probe = |t: f64| {
             let q = origin + dir * t;
             let r = q.length();
             let up = q / r;
-            let (lon, lat) = crate::geometry::lon_lat_unit(up);
+            let (lon, lat) = crate::geometry::lon_lat_fast(q);
             let h = self.heights.sample(lon, lat).unwrap_or(0.0);
             Probe {
                 gap: r - self.radius_m - h,
@@ -153,6 +157,15 @@ impl Terrain {
     /// unit direction `up`. On a displaced surface the ray starts on it; on an undisplaced one
     /// (the DEM tilts the normals only) it starts at the terrain's height there, as the DEM
     /// says the ground lies.
+    ///
+    /// A rising ray is traced at the rate of the steepest slope within its reach (its radius
+    /// does not fall; [`Relief::slope_within_reach`]), and one rising more steeply than that
+    /// is clear at once ([`crate::body::rises_above`]). With the steepest slope anywhere
+    /// (1 + 13.8 a metre on the LOLA DEM) and the system's arctangents, the reference of the
+    /// NRHO's row 232 at 128 x 128 pixels (`config/nrho_textured.toml`, tolerance 1e-4)
+    /// took 60 s; now 9.7 s, its total the same to 1.4e-8, 95 of its 16,343 lit pixels
+    /// changed (by 8e-3 at most, shadowed slivers where the cubature stops differently) and
+    /// the renderer's error against it the same to three digits.
     pub(super) fn shadowed(&self, up: DVec3, toward: DVec3, displaced: bool) -> bool {
         let rise = toward.dot(up);
         let horizontal = (1.0 - rise * rise).max(0.0).sqrt();
@@ -162,11 +175,21 @@ impl Terrain {
         if rise <= 0.0 && !displaced {
             return false; // the BRDF's cosine on the sphere already says so
         }
-        let h0 = self.height_at(up).unwrap_or(0.0);
+        let (lon, lat) = crate::geometry::lon_lat(up);
+        let rate = if rise > 0.0 {
+            let reach = self.relief.slope_within_reach(lon, lat);
+            if crate::body::rises_above(rise, reach) {
+                return false;
+            }
+            reach
+        } else {
+            1.0 + self.max_slope
+        };
+        let h0 = self.heights.sample(lon, lat).unwrap_or(0.0);
         // Clear of the ground it starts on (a thousand times the hit tolerance above it), as
         // the pipeline's marcher's rays leave it.
         let start = up * (self.radius_m + h0 + crate::body::SHADOW_RAY_LIFT * self.radius_m);
-        self.intersect(start, toward, 0.0).is_some()
+        self.trace(start, toward, 0.0, rate).is_some()
     }
 }
 
@@ -177,9 +200,11 @@ mod tests {
 
     /// A rough global DEM (craters and ridges of a few km on a 720 x 360 grid): the pyramid's
     /// leaps change no answer of the sphere tracing, for shadow rays at low Suns (polar ones
-    /// included) and for rays from afar at every incidence, on the displaced surface.
+    /// included) and for rays from afar at every incidence, on the displaced surface; nor do
+    /// a shadow ray's steps at the rate of the steepest slope within its reach, against the
+    /// steepest anywhere.
     #[test]
-    fn the_pyramid_leaps_change_no_answer() {
+    fn the_pyramid_leaps_and_the_reach_change_no_answer() {
         let hash = crate::body::pyramid::unit_hash;
         let relief = crate::body::pyramid::test_relief(
             |c, r, i| 3000.0 * (c * 0.07).sin() * (r * 0.11).cos() + 1500.0 * hash(i),
@@ -206,9 +231,13 @@ mod tests {
             let elev = (0.5 + 19.5 * hash(k * 7 + 4)).to_radians();
             let toward =
                 (elev.cos() * (az.cos() * east + az.sin() * north) + elev.sin() * up).normalize();
+            // At the steepest slope anywhere, without leaps.
+            let (lon, lat) = crate::geometry::lon_lat(up);
+            let h0 = relief.heights_m.sample(lon, lat).unwrap_or(0.0);
+            let start = up * (radius + h0 + crate::body::SHADOW_RAY_LIFT * radius);
             assert_eq!(
                 fast.shadowed(up, toward, true),
-                slow.shadowed(up, toward, true),
+                slow.intersect(start, toward, 0.0).is_some(),
                 "shadow ray {k}"
             );
             // Rays from 3 radii away towards a point near the surface.

@@ -171,6 +171,33 @@ impl MaxPyramid {
         })
     }
 
+    /// How far a ray may step from `at`, `gap_m` above the ground, without meeting it, where
+    /// it rises at least `rise` per metre of its length (a straight ray rising from the
+    /// ground: its elevation only grows): within a block's reach the ground rises at most
+    /// the block's steepest slope per metre of arc, so the gap cannot close within
+    /// `gap / (slope - rise)`, nor at all where the ray is steeper. The longest such step
+    /// over the levels (blocks spanning less than 0.1 rad, as [`MaxPyramid::rise_clear`]),
+    /// 0 where none allows one.
+    pub fn safe_step(&self, map: &Map, at: &RayPoint, gap_m: f64, rise: f64) -> f64 {
+        let place = Place::of(map, at);
+        let mut best = 0.0f64;
+        for lvl in &self.levels {
+            if lvl.span_lat_rad > 0.1 {
+                break;
+            }
+            let (a, _, block) = lvl.reach(&place);
+            let reach_m = a * self.bottom_radius_m;
+            let closing = 1.001 * lvl.dilated_slope[block] as f64 - rise;
+            let step = if closing > 0.0 {
+                (gap_m / closing).min(reach_m)
+            } else {
+                reach_m
+            };
+            best = best.max(step);
+        }
+        best
+    }
+
     /// How far a ray may go from the ground point `at` (on the bilinear surface) without
     /// meeting it, rising at `rise` (the sine of its elevation above the horizontal): as long
     /// as the point stays within a block's reach, the ground beneath it rises at most the

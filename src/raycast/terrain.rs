@@ -79,12 +79,21 @@ impl Terrain {
     /// over the block ([`MaxPyramid`]). A ray still above the ground after `MAX_STEPS` steps
     /// counts as meeting it.
     pub(super) fn intersect(&self, origin: DVec3, dir: DVec3, t0: f64) -> Option<f64> {
-        self.trace(origin, dir, t0, 1.0 + self.max_slope)
+        self.trace(origin, dir, t0, 1.0 + self.max_slope, None)
     }
 
     /// [`Terrain::intersect`] with the step `g / rate`: `rate` at least the rate at which the
-    /// ray can come nearer the ground per metre along it.
-    fn trace(&self, origin: DVec3, dir: DVec3, t0: f64, rate: f64) -> Option<f64> {
+    /// ray can come nearer the ground per metre along it. A ray that `rises` (at least that
+    /// sine of an elevation, from the ground) may step farther, by the slopes of the blocks
+    /// within reach of each point ([`MaxPyramid::safe_step`]).
+    fn trace(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        t0: f64,
+        rate: f64,
+        rises: Option<f64>,
+    ) -> Option<f64> {
         const MAX_STEPS: usize = 1_000_000;
         let ceiling = self.radius_m + self.top_m;
         let b = origin.dot(dir);
@@ -127,7 +136,11 @@ impl Terrain {
                 at = probe(t);
                 continue;
             }
-            let next = t + (at.gap / rate).max(self.min_step_m);
+            let safe = match (rises, self.pyramid.as_ref()) {
+                (Some(rise), Some(p)) => p.safe_step(&self.heights, &at.at, at.gap, rise),
+                _ => 0.0,
+            };
+            let next = t + (at.gap / rate).max(safe).max(self.min_step_m);
             let ahead = probe(next);
             if ahead.gap < 0.0 {
                 // Overshot (a minimal step): the crossing lies between.
@@ -176,20 +189,20 @@ impl Terrain {
             return false; // the BRDF's cosine on the sphere already says so
         }
         let (lon, lat) = crate::geometry::lon_lat(up);
-        let rate = if rise > 0.0 {
+        let (rate, rises) = if rise > 0.0 {
             let reach = self.relief.slope_within_reach(lon, lat);
             if crate::body::rises_above(rise, reach) {
                 return false;
             }
-            reach
+            (reach, Some(rise))
         } else {
-            1.0 + self.max_slope
+            (1.0 + self.max_slope, None)
         };
         let h0 = self.heights.sample(lon, lat).unwrap_or(0.0);
         // Clear of the ground it starts on (a thousand times the hit tolerance above it), as
         // the pipeline's marcher's rays leave it.
         let start = up * (self.radius_m + h0 + crate::body::SHADOW_RAY_LIFT * self.radius_m);
-        self.trace(start, toward, 0.0, rate).is_some()
+        self.trace(start, toward, 0.0, rate, rises).is_some()
     }
 }
 

@@ -275,3 +275,49 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
     assert_eq!(filter_at(3.0, false), MapFilter::Pixel);
     assert_eq!(filter_at(8.0, true), MapFilter::Pixel);
 }
+
+/// The NRHO's perilune frame of `config/nrho_textured_budget.toml` (the LOLA DEM, the Sun 21
+/// to 52 deg up, the limb in view): where the camera is lower than the DEM's steep slopes the
+/// terrain hides the ground from it, so the planner marches the shadows (with the Sun's side
+/// alone it took them off and said it met the budget, its total then 1.1e-2 against the
+/// reference); and, its quadrangles reading a DEM the error model never saw, the frame keeps
+/// the model's rung but does not claim the budget. The apolune frame, read by the relief
+/// filter, says nothing of the kind.
+#[test]
+fn a_frame_that_reads_a_dem_per_quadrangle_marches_the_cameras_shadows_and_claims_nothing() {
+    use optistim::fidelity::budget::{Budget, ErrorModel, Planner, UNFITTED_DEM};
+    use optistim::render::settings::SelfShadowing;
+    use std::path::Path;
+    let cfg = optistim::config::load(Path::new("config/nrho_textured_budget.toml")).unwrap();
+    let poses =
+        optistim::trajectory::read(Path::new("../shared/trajectories/nrho_2orbits.csv")).unwrap();
+    let range = |p: &optistim::scene::Pose| p.camera_position_m.length();
+    let nearest = poses
+        .iter()
+        .map(|(_, p)| p)
+        .min_by(|a, b| range(a).total_cmp(&range(b)));
+    let farthest = poses
+        .iter()
+        .map(|(_, p)| p)
+        .max_by(|a, b| range(a).total_cmp(&range(b)));
+    let planner = Planner::new(
+        &cfg.scene,
+        &cfg.settings,
+        Budget::default(),
+        ErrorModel::shipped().unwrap(),
+    );
+    let perilune = planner.plan(&cfg.scene, nearest.unwrap());
+    assert!(
+        perilune.features.shadow_share > 0.1,
+        "{:?}",
+        perilune.features
+    );
+    assert_eq!(perilune.self_shadowing, SelfShadowing::RayMarching);
+    assert_eq!(perilune.map_filter, MapFilter::Pixel);
+    assert!(!perilune.meets_budget);
+    assert_eq!(perilune.outside_model, Some(UNFITTED_DEM));
+    assert_eq!(perilune.points_per_pixel, LADDER[0], "the model's own rung");
+    let apolune = planner.plan(&cfg.scene, farthest.unwrap());
+    assert_eq!(apolune.map_filter, MapFilter::Relief);
+    assert_eq!(apolune.outside_model, None);
+}

@@ -85,8 +85,8 @@ pub struct Features {
     /// The relative change of the surface's brightness between neighbouring pixels due to the
     /// albedo map and the DEM's slopes (0 on a plain body).
     pub texture: f64,
-    /// The share of the lit surface in view where the Sun is low enough for the DEM's steep
-    /// slopes (99th percentile) to hide it (0 without a DEM).
+    /// The share of the lit surface in view where the Sun or the camera is low enough for
+    /// the DEM's steep slopes (99th percentile) to hide it (0 without a DEM).
     pub shadow_share: f64,
     /// 1 when the albedo enters the reflectance non-linearly (Hapke's single-scattering
     /// albedo: the footprint step reads the map through a ratio of reflectances, which
@@ -267,7 +267,9 @@ pub struct Plan {
     pub meets_budget: bool,
     /// Why the frame lies outside what the error model was fitted on, where it does
     /// ([`Planner::outside_model`]): its prediction is then an extrapolation, the frame is
-    /// rendered at the ladder's top rung and does not claim to meet the budget.
+    /// rendered at the ladder's top rung and does not claim to meet the budget. A frame that
+    /// reads a DEM per quadrangle ([`UNFITTED_DEM`]) keeps the model's rung and its
+    /// prediction, and does not claim them either.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub outside_model: Option<&'static str>,
     pub budget: Budget,
@@ -652,6 +654,17 @@ const MAX_ELONGATION: f64 = 2.0;
 const MAX_RELIEF_RADII: f64 = 0.02;
 const MIN_OPPOSITION_WIDTH: f64 = 0.01;
 
+/// Why a frame that reads a DEM per quadrangle (its shading by the DEM's normals, its
+/// shadows) does not claim the budget: the error model was fitted on frames without a DEM
+/// (`sweeps/budget.toml`, `sweeps/budget_hapke.toml`), and at 1024 x 1024 it predicted the
+/// NRHO's perilune frame at p99 2.3e-2 where it measured 6.3e-2 at the rung it took, and
+/// the Artemis I close approach at total 3.7e-5 where it measured 1.8e-4
+/// (`sweeps/issue15_dem_1024.toml`; `docs/performance.md`, "The DEM at 1024 x 1024"). The
+/// frame keeps the model's rung and prediction: the top rung, which other frames outside the
+/// model take, costs a hundred times more there (16 per pixel at perilune; 4 per pixel took
+/// 18.6 s).
+pub const UNFITTED_DEM: &str = "the error model was not fitted on frames whose quadrangles read a DEM: its rung is taken, its prediction not claimed";
+
 /// The quadrangles per pixel of the ladder's rungs, cheapest first.
 pub const LADDER: [f64; 9] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
 
@@ -813,16 +826,21 @@ impl FrameProbe {
 const REFINE_BELOW: usize = 256;
 
 /// A probe ray's class at `(u, v)` [px]: 0 misses the body, 1 dark, 2 lit; and whether the
-/// Sun there is lower than the DEM's steep slope `steep` (a tangent).
+/// Sun or the camera there is lower than the DEM's steep slope `steep` (a tangent): the
+/// terrain may then hide the point from either (Eq. 33 marches both). With the Sun alone, the
+/// NRHO's perilune frame (the Sun 21 to 52 deg up, the limb in view) showed no shadows,
+/// and the planner took its shadows off and said it met the budget, where without them its
+/// total is 1.1e-2 (`docs/performance.md`, "The DEM at 1024 x 1024").
 fn probe_class(tracer: &Tracer, pose: &Pose, steep: f64, u: f64, v: f64) -> (u8, bool) {
+    let tan_elevation = |mu: f64| mu / (1.0 - mu * mu).max(1e-30).sqrt();
     match tracer.shape_at(u, v) {
         None => (0, false),
         Some((p, n)) => {
             let s = (pose.sun_position_m - p).normalize();
             let mu0 = n.dot(s);
             if mu0 > 0.0 {
-                let tan_e = mu0 / (1.0 - mu0 * mu0).max(1e-30).sqrt();
-                (2, tan_e < steep)
+                let mu = n.dot((pose.camera_position_m - p).normalize());
+                (2, tan_elevation(mu0) < steep || tan_elevation(mu) < steep)
             } else {
                 (1, false)
             }
@@ -1172,6 +1190,16 @@ impl Planner {
                 .unwrap_or(&predicted[predicted.len() - 1]);
             (ppp, q, false)
         };
+        // The model has not seen a DEM read per quadrangle: its prediction is not claimed
+        // (a flat DEM's changes nothing).
+        let relief = self
+            .probe
+            .relief
+            .is_some_and(|(_, change, steep)| change > 0.0 || steep > 0.0);
+        let unfitted = (outside.is_none() && relief && map_filter != MapFilter::Relief)
+            .then_some(UNFITTED_DEM);
+        let meets = meets && (unfitted.is_none() || features.lit_px == 0.0);
+        let outside = outside.or(unfitted.filter(|_| features.lit_px > 0.0));
         let settings = Settings {
             self_shadowing: shadows,
             map_filter,

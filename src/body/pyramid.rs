@@ -179,23 +179,36 @@ impl MaxPyramid {
     /// over the levels (blocks spanning less than 0.1 rad, as [`MaxPyramid::rise_clear`]),
     /// 0 where none allows one.
     pub fn safe_step(&self, map: &Map, at: &RayPoint, gap_m: f64, rise: f64) -> f64 {
+        self.small_blocks(map, at)
+            .map(|(a, _, slope)| {
+                let reach_m = a * self.bottom_radius_m;
+                let closing = 1.001 * slope - rise;
+                if closing > 0.0 {
+                    (gap_m / closing).min(reach_m)
+                } else {
+                    reach_m
+                }
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// Per level whose blocks span less than 0.1 rad (where an arc and its chord differ by
+    /// less than the margin of 1e-3), finest first: the reach from `at` [rad]
+    /// ([`MaxLevel::reach`]), the blocks' span [rad] and the steepest slope in the dilated
+    /// block there.
+    fn small_blocks<'a>(
+        &'a self,
+        map: &Map,
+        at: &RayPoint,
+    ) -> impl Iterator<Item = (f64, f64, f64)> + 'a {
         let place = Place::of(map, at);
-        let mut best = 0.0f64;
-        for lvl in &self.levels {
-            if lvl.span_lat_rad > 0.1 {
-                break;
-            }
-            let (a, _, block) = lvl.reach(&place);
-            let reach_m = a * self.bottom_radius_m;
-            let closing = 1.001 * lvl.dilated_slope[block] as f64 - rise;
-            let step = if closing > 0.0 {
-                (gap_m / closing).min(reach_m)
-            } else {
-                reach_m
-            };
-            best = best.max(step);
-        }
-        best
+        self.levels
+            .iter()
+            .take_while(|lvl| lvl.span_lat_rad <= 0.1)
+            .map(move |lvl| {
+                let (a, _, block) = lvl.reach(&place);
+                (a, lvl.span_lat_rad, lvl.dilated_slope[block] as f64)
+            })
     }
 
     /// How far a ray may go from the ground point `at` (on the bilinear surface) without
@@ -206,21 +219,12 @@ impl MaxPyramid {
     /// level allows it. Blocks spanning less than 0.1 rad only, where an arc and its chord
     /// differ by less than the margin of 1e-3.
     pub fn rise_clear(&self, map: &Map, at: &RayPoint, rise: f64) -> f64 {
-        let place = Place::of(map, at);
         let mut best = 0.0;
-        for lvl in &self.levels {
-            if lvl.span_lat_rad > 0.1 {
+        for (a, span, slope) in self.small_blocks(map, at) {
+            if a < 0.45 * span || !(rise > 1.001 * slope) {
                 break;
             }
-            let (a, _, block) = lvl.reach(&place);
-            if a < 0.45 * lvl.span_lat_rad {
-                break;
-            }
-            if rise > 1.001 * lvl.dilated_slope[block] as f64 {
-                best = a * self.bottom_radius_m;
-            } else {
-                break;
-            }
+            best = a * self.bottom_radius_m;
         }
         best
     }

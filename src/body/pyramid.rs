@@ -221,7 +221,9 @@ impl MaxPyramid {
     pub fn rise_clear(&self, map: &Map, at: &RayPoint, rise: f64) -> f64 {
         let mut best = 0.0;
         for (a, span, slope) in self.small_blocks(map, at) {
-            if a < 0.45 * span || !(rise > 1.001 * slope) {
+            // A NaN slope (a broken DEM's) ends the walk too.
+            let steeper = rise > 1.001 * slope;
+            if a < 0.45 * span || !steeper {
                 break;
             }
             best = a * self.bottom_radius_m;

@@ -487,8 +487,8 @@ impl Relief {
 
     /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray rising
     /// more steeply than every slope within its reach is clear at once,
-    /// [`rises_above`] [`Relief::slope_within_reach`]; the pyramid's leaps) or without: the points are
-    /// those of one sequence (the start, the near field's [`NEAR_FIELD_STEPS`], then step `n`
+    /// [`Relief::slope_within_reach`]; the pyramid's leaps) or without: the points are those
+    /// of one sequence (the start, the near field's [`NEAR_FIELD_STEPS`], then step `n`
     /// at `n` steps from the start). A leap skips the points of the sequence within the reach
     /// over which the ray clears the highest ground, tests the last of them, and checks no
     /// dip between the two; every other pair of consecutive points is checked alike either
@@ -602,9 +602,8 @@ impl Relief {
     /// it clears the highest point ([`Relief::reach_slope`]), per metre of arc at the lowest
     /// radius: a ray rising more steeply than that, by the tangent of its elevation
     /// ([`rises_above`]), is never below the ground, since the ground under it rises more
-    /// slowly than it does
-    /// ([`pyramid::MaxPyramid::rise_clear`]'s argument, out to the arc where nothing is
-    /// higher). The steepest cell anywhere for a regional DEM.
+    /// slowly than it does ([`pyramid::MaxPyramid::rise_clear`]'s argument, out to the arc
+    /// where nothing is higher). The steepest cell anywhere for a regional DEM.
     pub(crate) fn slope_within_reach(&self, lon: f64, lat: f64) -> f64 {
         let Some(reach) = self.reach_slope.as_deref() else {
             return self.max_cell_slope;

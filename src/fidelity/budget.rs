@@ -268,8 +268,8 @@ pub struct Plan {
     /// Why the frame lies outside what the error model was fitted on, where it does
     /// ([`Planner::outside_model`]): its prediction is then an extrapolation, the frame is
     /// rendered at the ladder's top rung and does not claim to meet the budget. A frame that
-    /// reads a DEM per quadrangle ([`UNFITTED_DEM`]) keeps the model's rung and its
-    /// prediction, and does not claim them either.
+    /// reads a DEM ([`UNFITTED_DEM`]) keeps the model's rung and its prediction, and does
+    /// not claim them either.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub outside_model: Option<&'static str>,
     pub budget: Budget,
@@ -654,16 +654,16 @@ const MAX_ELONGATION: f64 = 2.0;
 const MAX_RELIEF_RADII: f64 = 0.02;
 const MIN_OPPOSITION_WIDTH: f64 = 0.01;
 
-/// Why a frame that reads a DEM per quadrangle (its shading by the DEM's normals, its
-/// shadows) does not claim the budget: the error model was fitted on frames without a DEM
-/// (`sweeps/budget.toml`, `sweeps/budget_hapke.toml`), and at 1024 x 1024 it predicted the
-/// NRHO's perilune frame at p99 2.3e-2 where it measured 6.3e-2 at the rung it took, and
-/// the Artemis I close approach at total 3.7e-5 where it measured 1.8e-4
+/// Why a frame that reads a DEM (its shading by the DEM's normals, its shadows; per
+/// quadrangle or per pixel) does not claim the budget: the error model was fitted on frames
+/// without a DEM (`sweeps/budget.toml`, `sweeps/budget_hapke.toml`), and at 1024 x 1024 it
+/// predicted the NRHO's perilune frame at p99 2.3e-2 where it measured 6.3e-2 at the rung it
+/// took and the Artemis I close approach at total 3.7e-5 where it measured 1.8e-4
 /// (`sweeps/issue15_dem_1024.toml`; `docs/performance.md`, "The DEM at 1024 x 1024"). The
 /// frame keeps the model's rung and prediction: the top rung, which other frames outside the
 /// model take, costs a hundred times more there (16 per pixel at perilune; 4 per pixel took
 /// 18.6 s).
-pub const UNFITTED_DEM: &str = "the error model was not fitted on frames whose quadrangles read a DEM: its rung is taken, its prediction not claimed";
+pub const UNFITTED_DEM: &str = "the error model was not fitted on frames with a DEM: its rung is taken, its prediction not claimed";
 
 /// The quadrangles per pixel of the ladder's rungs, cheapest first.
 pub const LADDER: [f64; 9] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
@@ -1190,14 +1190,13 @@ impl Planner {
                 .unwrap_or(&predicted[predicted.len() - 1]);
             (ppp, q, false)
         };
-        // The model has not seen a DEM read per quadrangle: its prediction is not claimed
-        // (a flat DEM's changes nothing).
+        // The model has not seen a DEM: its prediction is not claimed (a flat DEM's
+        // changes nothing).
         let relief = self
             .probe
             .relief
             .is_some_and(|(_, change, steep)| change > 0.0 || steep > 0.0);
-        let unfitted = (outside.is_none() && relief && map_filter != MapFilter::Relief)
-            .then_some(UNFITTED_DEM);
+        let unfitted = (outside.is_none() && relief).then_some(UNFITTED_DEM);
         let meets = meets && (unfitted.is_none() || features.lit_px == 0.0);
         let outside = outside.or(unfitted.filter(|_| features.lit_px > 0.0));
         let settings = Settings {

@@ -1196,9 +1196,10 @@ impl Planner {
             .probe
             .relief
             .is_some_and(|(_, change, steep)| change > 0.0 || steep > 0.0);
-        let unfitted = (outside.is_none() && relief).then_some(UNFITTED_DEM);
-        let meets = meets && (unfitted.is_none() || features.lit_px == 0.0);
-        let outside = outside.or(unfitted.filter(|_| features.lit_px > 0.0));
+        let unfitted =
+            (outside.is_none() && relief && features.lit_px > 0.0).then_some(UNFITTED_DEM);
+        let meets = meets && unfitted.is_none();
+        let outside = outside.or(unfitted);
         let settings = Settings {
             self_shadowing: shadows,
             map_filter,

@@ -99,6 +99,10 @@ pub struct Features {
     /// rest ([`Features::modelled`]).
     #[serde(default)]
     pub relief_texture: f64,
+    /// 1 where the body has a DEM that is not flat, else 0: the model's
+    /// [`Regressors::Relief`] term and its own margin apply to such frames alone.
+    #[serde(default)]
+    pub relief: f64,
 }
 
 impl Features {
@@ -142,6 +146,12 @@ pub enum Regressors {
     /// `(1, ln p, ln(H + 1e-6))`, `H` [`Features::nonlinear_albedo`]: the floor a reflectance
     /// that is not linear in the albedo leaves (nothing on a Lambertian body).
     Reflectance,
+    /// `(1, ln p, ln(S + 1e-3), ln(R + 1e-3))`, `S` [`Features::shadow_share`] and `R`
+    /// [`Features::relief_texture`] as modelled (0 where the relief is read over each pixel):
+    /// what a DEM adds, its shadows' edges and its shading where the quadrangles carry it.
+    /// It is summed only on frames with a DEM ([`Features::relief`]), fitted on them alone
+    /// after the other terms, and bounded by its own margin ([`FigureModel::relief_margin`]).
+    Relief,
 }
 
 impl Regressors {
@@ -156,11 +166,17 @@ impl Regressors {
             ],
             Regressors::Inside => vec![1.0, p, t, p * t],
             Regressors::Reflectance => vec![1.0, p, (f.nonlinear_albedo + 1e-6).ln()],
+            Regressors::Relief => vec![
+                1.0,
+                p,
+                (f.shadow_share + 1e-3).ln(),
+                (f.relief_texture + 1e-3).ln(),
+            ],
         }
     }
 
     /// Every kind with its regressors as written in the model file's header.
-    pub const ALL: [(Regressors, &'static str); 3] = [
+    pub const ALL: [(Regressors, &'static str); 4] = [
         (
             Regressors::Edge,
             "edge:   (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(phase / 2) + 0.05))",
@@ -172,6 +188,10 @@ impl Regressors {
         (
             Regressors::Reflectance,
             "reflectance: (1, ln p, ln(H + 1e-6))",
+        ),
+        (
+            Regressors::Relief,
+            "relief: (1, ln p, ln(S + 1e-3), ln(R + 1e-3)), on frames with a DEM alone",
         ),
     ];
 
@@ -187,22 +207,34 @@ pub struct Term {
     pub k: Vec<f64>,
 }
 
-/// One figure's model: `e = margin * sum over terms of exp(k . x)`.
+/// One figure's model: `e = margin * sum over terms of exp(k . x)`; on a frame with a DEM
+/// ([`Features::relief`]) the [`Regressors::Relief`] terms join the sum and `relief_margin`
+/// replaces `margin`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FigureModel {
     pub margin: f64,
+    /// The margin that bounds every frame with a DEM the model was fitted on; `None` where it
+    /// was fitted on none (then such a frame's prediction is `margin`'s extrapolation, and
+    /// the planner does not claim it: [`UNFITTED_DEM`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relief_margin: Option<f64>,
     pub term: Vec<Term>,
 }
 
 impl FigureModel {
     pub fn predict(&self, points_per_px: f64, f: &Features) -> f64 {
-        self.margin * self.modelled(points_per_px, f)
+        let margin = match self.relief_margin {
+            Some(m) if f.relief > 0.0 => m,
+            _ => self.margin,
+        };
+        margin * self.modelled(points_per_px, f)
     }
 
     /// The fitted law without the margin.
     fn modelled(&self, points_per_px: f64, f: &Features) -> f64 {
         self.term
             .iter()
+            .filter(|t| t.x != Regressors::Relief || f.relief > 0.0)
             .map(|t| dot(&t.k, &t.x.values(points_per_px, f)).exp())
             .sum()
     }
@@ -353,7 +385,8 @@ impl ErrorModel {
                     .iter()
                     .all(|t| t.k.len() == t.x.len() && t.k.iter().all(|x| x.is_finite()))
                 && f.margin >= 1.0
-                && f.margin.is_finite();
+                && f.margin.is_finite()
+                && f.relief_margin.is_none_or(|m| m >= 1.0 && m.is_finite());
             if !ok {
                 return Err(ModelError::Parse {
                     file: file.into(),
@@ -373,19 +406,38 @@ impl ErrorModel {
     /// Fits each figure on `rows` (see the module's documentation): the terms by least
     /// squares in logarithms (`fit_terms`), then the margin that bounds every row. Each
     /// figure is an [`Regressors::Edge`], an [`Regressors::Inside`] and a
-    /// [`Regressors::Reflectance`] term.
+    /// [`Regressors::Reflectance`] term, fitted on the frames without a DEM; then, where
+    /// there are frames with one, a [`Regressors::Relief`] term fitted on those alone over
+    /// the first three held fixed, with its own margin. The first three, and so every frame
+    /// without a DEM, are what they would be without the frames with one.
     pub fn fit(rows: &[FitRow]) -> Result<ErrorModel, ModelError> {
+        let (relief, plain): (Vec<FitRow>, Vec<FitRow>) =
+            rows.iter().partition(|r| r.features.relief > 0.0);
         let terms = [
             Regressors::Edge,
             Regressors::Inside,
             Regressors::Reflectance,
         ];
+        let figure = |get: fn(&FitRow) -> f64, name: &str| {
+            let mut m = fit_figure(&plain, get, name, &terms)?;
+            if !relief.is_empty() {
+                fit_relief(&mut m, &relief, get, name)?;
+            }
+            Ok::<_, ModelError>(m)
+        };
         Ok(ErrorModel {
-            median: fit_figure(rows, |r| r.median, "median", &terms)?,
-            p99: fit_figure(rows, |r| r.p99, "p99", &terms)?,
-            total: fit_figure(rows, |r| r.total, "total", &terms)?,
+            median: figure(|r| r.median, "median")?,
+            p99: figure(|r| r.p99, "p99")?,
+            total: figure(|r| r.total, "total")?,
             frames: rows.len(),
         })
+    }
+
+    /// Whether every figure was fitted on frames with a DEM (has its relief margin).
+    pub fn fitted_on_relief(&self) -> bool {
+        [&self.median, &self.p99, &self.total]
+            .iter()
+            .all(|f| f.relief_margin.is_some())
     }
 
     pub fn predict(&self, points_per_px: f64, f: &Features) -> Predicted {
@@ -429,10 +481,11 @@ fn fit_figure(
         })
         .collect();
     let y: Vec<f64> = usable.iter().map(|r| get(r).ln()).collect();
-    let k =
-        fit_terms(&x, &y).ok_or_else(|| ModelError::Fit(format!("{name}: singular regressors")))?;
+    let k = fit_terms(&x, &y, &vec![0.0; y.len()])
+        .ok_or_else(|| ModelError::Fit(format!("{name}: singular regressors")))?;
     let mut m = FigureModel {
         margin: 1.0,
+        relief_margin: None,
         term: terms.iter().zip(k).map(|(&x, k)| Term { x, k }).collect(),
     };
     let worst = usable
@@ -444,19 +497,76 @@ fn fit_figure(
     Ok(m)
 }
 
-/// Least squares of `y = ln sum_t exp(k_t . x_t)` (`x[row][term]`): a single term is linear
-/// ([`solve`] on the normal equations); several are fitted by Levenberg-Marquardt from
-/// deterministic starts (each term alone fitted to all rows, then shifted so that one or
-/// another dominates, and 40 fixed pseudo-random ones), keeping the best.
-fn fit_terms(x: &[Vec<Vec<f64>>], y: &[f64]) -> Option<Vec<Vec<f64>>> {
+/// The [`Regressors::Relief`] term of the figure `m` (its other terms fitted), fitted on the
+/// frames with a DEM `rows` over those terms held fixed, and the margin that bounds them.
+fn fit_relief(
+    m: &mut FigureModel,
+    rows: &[FitRow],
+    get: fn(&FitRow) -> f64,
+    name: &str,
+) -> Result<(), ModelError> {
+    let usable: Vec<&FitRow> = rows
+        .iter()
+        .filter(|r| get(r).is_finite() && get(r) > 0.0 && r.points_per_px > 0.0)
+        .collect();
+    let n = Regressors::Relief.len();
+    if usable.len() < 2 * n {
+        return Err(ModelError::Fit(format!(
+            "{name}: {} usable frames with a DEM, at least {} needed",
+            usable.len(),
+            2 * n
+        )));
+    }
+    let x: Vec<Vec<Vec<f64>>> = usable
+        .iter()
+        .map(|r| vec![Regressors::Relief.values(r.points_per_px, &r.features)])
+        .collect();
+    let y: Vec<f64> = usable.iter().map(|r| get(r).ln()).collect();
+    let base: Vec<f64> = usable
+        .iter()
+        .map(|r| m.modelled(r.points_per_px, &r.features))
+        .collect();
+    let k = fit_terms(&x, &y, &base)
+        .ok_or_else(|| ModelError::Fit(format!("{name}: singular relief regressors")))?;
+    m.term.push(Term {
+        x: Regressors::Relief,
+        k: k.into_iter().next().unwrap_or_default(),
+    });
+    let worst = usable
+        .iter()
+        .zip(&y)
+        .map(|(r, y)| y - m.modelled(r.points_per_px, &r.features).ln())
+        .fold(0.0f64, f64::max);
+    m.relief_margin = Some(worst.exp());
+    Ok(())
+}
+
+/// Least squares of `y = ln(base + sum_t exp(k_t . x_t))` (`x[row][term]`, `base` per row, 0
+/// but where terms fitted before are held fixed): a single term over no base is linear
+/// ([`solve`] on the normal equations); otherwise Levenberg-Marquardt from deterministic
+/// starts (each term alone fitted to all rows, then shifted so that one or another
+/// dominates, and 40 fixed pseudo-random ones), keeping the best.
+fn fit_terms(x: &[Vec<Vec<f64>>], y: &[f64], base: &[f64]) -> Option<Vec<Vec<f64>>> {
     let sizes: Vec<usize> = x.first()?.iter().map(Vec::len).collect();
+    // Each term alone, fitted to what the base leaves (at least a tenth of each row).
+    let left: Vec<f64> = y
+        .iter()
+        .zip(base)
+        .map(|(&y, &b)| {
+            if b == 0.0 {
+                y
+            } else {
+                (y.exp() - b).max(0.1 * y.exp()).ln()
+            }
+        })
+        .collect();
     let alone: Vec<Vec<f64>> = (0..sizes.len())
         .map(|t| {
             let rows: Vec<&[f64]> = x.iter().map(|r| r[t].as_slice()).collect();
-            linear_fit(&rows, y)
+            linear_fit(&rows, &left)
         })
         .collect::<Option<_>>()?;
-    if sizes.len() == 1 {
+    if sizes.len() == 1 && base.iter().all(|&b| b == 0.0) {
         return Some(alone);
     }
     let flat = |k: &[Vec<f64>]| k.concat();
@@ -492,8 +602,8 @@ fn fit_terms(x: &[Vec<Vec<f64>>], y: &[f64]) -> Option<Vec<Vec<f64>>> {
     }
     let mut best: Option<(f64, Vec<f64>)> = None;
     for start in starts {
-        let k = levenberg_marquardt(x, y, start, &sizes);
-        let cost = cost(x, y, &split(&k, &sizes));
+        let k = levenberg_marquardt(x, y, base, start, &sizes);
+        let cost = cost(x, y, base, &split(&k, &sizes));
         if cost.is_finite() && best.as_ref().is_none_or(|(c, _)| cost < *c) {
             best = Some((cost, k));
         }
@@ -513,11 +623,12 @@ fn split(v: &[f64], sizes: &[usize]) -> Vec<Vec<f64>> {
 }
 
 /// The sum of squared residuals in logarithms.
-fn cost(x: &[Vec<Vec<f64>>], y: &[f64], k: &[Vec<f64>]) -> f64 {
+fn cost(x: &[Vec<Vec<f64>>], y: &[f64], base: &[f64], k: &[Vec<f64>]) -> f64 {
     x.iter()
         .zip(y)
-        .map(|(row, y)| {
-            let m: f64 = row.iter().zip(k).map(|(x, k)| dot(k, x).exp()).sum();
+        .zip(base)
+        .map(|((row, y), b)| {
+            let m: f64 = b + row.iter().zip(k).map(|(x, k)| dot(k, x).exp()).sum::<f64>();
             (y - m.ln()).powi(2)
         })
         .sum()
@@ -526,20 +637,21 @@ fn cost(x: &[Vec<Vec<f64>>], y: &[f64], k: &[Vec<f64>]) -> f64 {
 fn levenberg_marquardt(
     x: &[Vec<Vec<f64>>],
     y: &[f64],
+    base: &[f64],
     mut k: Vec<f64>,
     sizes: &[usize],
 ) -> Vec<f64> {
     let n = k.len();
     let split = |v: &[f64]| split(v, sizes);
     let mut lambda = 1e-3;
-    let mut c = cost(x, y, &split(&k));
+    let mut c = cost(x, y, base, &split(&k));
     for _ in 0..2000 {
         let kk = split(&k);
         let mut jtj = vec![vec![0.0; n]; n];
         let mut jtr = vec![0.0; n];
-        for (row, y) in x.iter().zip(y) {
+        for ((row, y), b) in x.iter().zip(y).zip(base) {
             let parts: Vec<f64> = row.iter().zip(&kk).map(|(x, k)| dot(k, x).exp()).collect();
-            let m: f64 = parts.iter().sum();
+            let m: f64 = b + parts.iter().sum::<f64>();
             let r = y - m.ln();
             let j: Vec<f64> = row
                 .iter()
@@ -564,7 +676,7 @@ fn levenberg_marquardt(
                 continue;
             };
             let trial: Vec<f64> = k.iter().zip(&step).map(|(k, s)| k + s).collect();
-            let ct = cost(x, y, &split(&trial));
+            let ct = cost(x, y, base, &split(&trial));
             if ct < c {
                 let done = (c - ct) < 1e-12 * c.max(1e-300);
                 k = trial;
@@ -817,6 +929,14 @@ impl FrameProbe {
             shadow_share: if lit_px > 0.0 { low_px / lit_px } else { 0.0 },
             nonlinear_albedo: self.nonlinear_albedo,
             relief_texture,
+            relief: if self
+                .relief
+                .is_some_and(|(_, change, steep)| change > 0.0 || steep > 0.0)
+            {
+                1.0
+            } else {
+                0.0
+            },
         }
     }
 }
@@ -940,6 +1060,10 @@ pub struct Planner {
     /// shading may be read over each pixel's footprint with the map ([`MapFilter::Relief`]:
     /// an undisplaced DEM and an albedo map); `None` elsewhere.
     finest_over_map_texels: Option<f64>,
+    /// Whether the model was fitted on frames with a DEM of the scene's kind (one that
+    /// tilts the normals and casts shadows without displacing the surface), so that such a
+    /// frame may claim the budget ([`UNFITTED_DEM`]).
+    relief_fitted: bool,
 }
 
 /// The footprint, in the finer of the map's and the DEM's texels, from which the planner
@@ -967,10 +1091,13 @@ impl Planner {
     pub fn new(scene: &Scene, base: &Settings, budget: Budget, model: ErrorModel) -> Planner {
         Planner {
             budget,
+            relief_fitted: model.fitted_on_relief()
+                && scene.body.relief.as_ref().is_none_or(|r| !r.displaces()),
             model,
             base: base.clone(),
             probe: FrameProbe::new(scene),
             has_horizon: scene.body.relief.as_ref().is_some_and(|r| r.has_horizon()),
+
             finest_over_map_texels: match (&scene.body.relief, &scene.body.albedo_map) {
                 (Some(r), Some(a)) if !r.displaces() => {
                     Some((r.heights_m.spacing_rad().1 / a.map.spacing_rad().1).min(1.0))
@@ -1000,6 +1127,18 @@ impl Planner {
             },
             map_filter: MapFilter::Pixel,
             ..base.clone()
+        }
+    }
+
+    /// The ladder's rung at `points_per_px` as the planner renders a frame showing
+    /// `features` within the model's domain: with the shadows ([`Planner::shadowing`]) and
+    /// the map filter ([`Planner::map_filter`]) it takes for that frame. The sweep renders
+    /// these (`rung = p` in a sweep file) to fit the model on what the planner renders.
+    pub fn planned(&self, features: &Features, points_per_px: f64) -> Settings {
+        Settings {
+            self_shadowing: self.shadowing(features),
+            map_filter: self.map_filter(features),
+            ..Planner::rung(&self.base, points_per_px)
         }
     }
 
@@ -1190,20 +1329,18 @@ impl Planner {
                 .unwrap_or(&predicted[predicted.len() - 1]);
             (ppp, q, false)
         };
-        // The model has not seen a DEM: its prediction is not claimed (a flat DEM's
-        // changes nothing).
-        let relief = self
-            .probe
-            .relief
-            .is_some_and(|(_, change, steep)| change > 0.0 || steep > 0.0);
-        let unfitted =
-            (outside.is_none() && relief && features.lit_px > 0.0).then_some(UNFITTED_DEM);
+        // A DEM the model has not seen: its prediction is not claimed (a flat DEM's changes
+        // nothing).
+        let unfitted = (outside.is_none()
+            && features.relief > 0.0
+            && features.lit_px > 0.0
+            && !self.relief_fitted)
+            .then_some(UNFITTED_DEM);
         let meets = meets && unfitted.is_none();
         let outside = outside.or(unfitted);
         let settings = Settings {
             self_shadowing: shadows,
-            map_filter,
-            ..Planner::rung(&self.base, ppp)
+            ..self.planned(&features, ppp)
         };
         Plan {
             points_per_pixel: ppp,
@@ -1265,6 +1402,7 @@ mod tests {
     fn the_fit_recovers_the_law_that_made_the_frames() {
         let two = |scale: f64| FigureModel {
             margin: 1.0,
+            relief_margin: None,
             term: vec![
                 Term {
                     x: Regressors::Edge,
@@ -1326,6 +1464,82 @@ mod tests {
         // The shipped model parses and round-trips.
         let shipped = ErrorModel::shipped().unwrap();
         assert_eq!(ErrorModel::parse(&shipped.to_toml(), "x").unwrap(), shipped);
+    }
+
+    /// Frames with a DEM fit the relief term over the other terms held fixed: those terms,
+    /// and so every prediction for a frame without a DEM, are the same as when fitted
+    /// without them; a law's relief term is recovered, and a noisy DEM frame raises the
+    /// relief margin alone.
+    #[test]
+    fn frames_with_a_dem_fit_their_own_term_and_margin_and_leave_the_rest() {
+        let plain = |p: f64, t: f64, edge: f64| {
+            let mut r = row(p, t, 1e-3 * (t + 1e-3) / p.sqrt() + 1e-5 * edge / p);
+            r.features.edge_px = edge;
+            r.p99 = 30.0 * r.median;
+            r.total = 0.05 * r.median;
+            r
+        };
+        let mut rows: Vec<FitRow> = Vec::new();
+        for &t in &[0.0, 0.01, 0.1] {
+            for &edge in &[5.0, 50.0, 200.0] {
+                for &p in &LADDER {
+                    rows.push(plain(p, t, edge));
+                }
+            }
+        }
+        let without = ErrorModel::fit(&rows).unwrap();
+        assert!(!without.fitted_on_relief());
+        // The relief's own law: k . (1, ln p, ln(S + 1e-3), ln(R + 1e-3)).
+        let k = [-3.0, -0.6, 0.8, 0.4];
+        let mut with = rows.clone();
+        for &s in &[0.01, 0.1, 0.3] {
+            for &rt in &[0.0, 0.02, 0.2] {
+                for &p in &LADDER {
+                    let mut r = plain(p, 0.05, 50.0);
+                    r.features.relief = 1.0;
+                    r.features.shadow_share = s;
+                    r.features.relief_texture = rt;
+                    let base = without.median.modelled(p, &r.features);
+                    let x = Regressors::Relief.values(p, &r.features);
+                    r.median = base + dot(&k, &x).exp();
+                    with.push(r);
+                }
+            }
+        }
+        let m = ErrorModel::fit(&with).unwrap();
+        assert!(m.fitted_on_relief());
+        let first_three = |f: &FigureModel| f.term[..3].to_vec();
+        for (a, b) in [
+            (&m.median, &without.median),
+            (&m.p99, &without.p99),
+            (&m.total, &without.total),
+        ] {
+            assert_eq!(first_three(a), first_three(b));
+            assert_eq!(a.margin, b.margin);
+        }
+        for r in &rows {
+            assert_eq!(
+                m.predict(r.points_per_px, &r.features),
+                without.predict(r.points_per_px, &r.features)
+            );
+        }
+        let relief = &m.median.term[3];
+        assert_eq!(relief.x, Regressors::Relief);
+        for (a, b) in relief.k.iter().zip(k) {
+            assert!((a - b).abs() < 1e-4, "{:?} against {k:?}", relief.k);
+        }
+        assert!(m.median.relief_margin.unwrap() < 1.0 + 1e-6);
+        let mut noisy = with.clone();
+        let last = noisy.len() - 1;
+        noisy[last].median *= 3.0;
+        let n = ErrorModel::fit(&noisy).unwrap();
+        assert_eq!(n.median.margin, m.median.margin);
+        assert!(n.median.relief_margin.unwrap() > 2.0);
+        for r in &noisy {
+            assert!(n.median.predict(r.points_per_px, &r.features) >= r.median * (1.0 - 1e-9));
+        }
+        // The model with its relief term round-trips through its file.
+        assert_eq!(ErrorModel::parse(&m.to_toml(), "x").unwrap(), m);
     }
 
     /// Under `MapFilter::Relief` the model reads the map's texture alone (the relief is read

@@ -31,7 +31,11 @@
 //! [[setting]]
 //! name = "default"
 //! render = { preset = "default" }   # the frame's [render] table, over the scene's
-//! ```                               # patch.render (the scene file's own [render] is not used)
+//!                                   # patch.render (the scene file's own [render] is not used)
+//! [[setting]]
+//! name = "planned 1"
+//! rung = 1.0                        # the fidelity planner's rung, with the shadows and map
+//! ```                               # filter it takes for each scene (Planner::planned)
 //!
 //! References are kept in `DIR/references/` under the SHA-256 of the scene text, the pose and
 //! the reference's settings, so a sweep run again (more settings, more repeats) reuses them.
@@ -40,10 +44,10 @@ pub mod chart;
 
 use super::AppError;
 use crate::config::Config;
-use crate::fidelity::budget::{ErrorModel, Features, FitRow, FrameProbe, Planner};
+use crate::fidelity::budget::{Budget, ErrorModel, Features, FitRow, FrameProbe, Planner};
 use crate::fidelity::metrics::{FrameError, frame_error};
 use crate::raycast::reference::{self, ReferenceMethod, ReferenceSettings};
-use crate::render::Renderer;
+use crate::render::{MapFilter, Renderer};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -82,6 +86,10 @@ struct RawSetting {
     name: String,
     #[serde(default)]
     render: toml::Table,
+    /// The fidelity planner's rung at this many quadrangles per pixel, with the shadows and
+    /// the map filter the planner takes for each scene ([`Planner::planned`]), over
+    /// `render`: the rows the error model is fitted on for frames with a DEM.
+    rung: Option<f64>,
 }
 
 /// Another renderer measured on a scene (quoted in the sweep file with its source).
@@ -125,6 +133,11 @@ pub struct Row {
     /// `--fit` fits the error model on.
     pub points_per_px: f64,
     pub ladder: bool,
+    /// The setting's map filter (`MapFilter`, snake case; "pixel" in the CSVs written before
+    /// the column existed, none of whose ladder rows read the relief per pixel): under
+    /// "relief" the model reads the map's texture alone ([`Features::modelled`]).
+    #[serde(default = "pixel")]
+    pub map_filter: String,
     /// What the frame shows ([`crate::fidelity::budget::Features`]).
     pub f_radius_px: f64,
     pub f_lit_px: f64,
@@ -139,6 +152,9 @@ pub struct Row {
     /// 0 in the CSVs written before the feature existed.
     #[serde(default)]
     pub f_relief_texture: f64,
+    /// 0 in the CSVs written before the feature existed, none of whose frames had a DEM.
+    #[serde(default)]
+    pub f_relief: f64,
     /// The frame's own estimate of its reads' p99 under `map_filter = "relief"`
     /// ([`crate::render::FrameStats::relief_read_p99`]), beside the measured `err_p99`; NaN
     /// for other settings and in older CSVs.
@@ -148,6 +164,10 @@ pub struct Row {
 
 fn nan() -> f64 {
     f64::NAN
+}
+
+fn pixel() -> String {
+    "pixel".into()
 }
 
 impl Row {
@@ -164,7 +184,19 @@ impl Row {
             shadow_share: self.f_shadow_share,
             nonlinear_albedo: self.f_nonlinear_albedo,
             relief_texture: self.f_relief_texture,
+            relief: self.f_relief,
         }
+    }
+
+    /// The features the error model reads for this row's setting ([`Features::modelled`]).
+    pub fn modelled_features(&self) -> Features {
+        let filter = match self.map_filter.as_str() {
+            "relief" => MapFilter::Relief,
+            "area" => MapFilter::Area,
+            "point" => MapFilter::Point,
+            _ => MapFilter::Pixel,
+        };
+        self.features().modelled(filter)
     }
 }
 
@@ -206,7 +238,7 @@ pub fn fit(rows: &[Row]) -> Result<ErrorModel, AppError> {
         .filter(|r| r.ladder && r.failure.is_empty())
         .map(|r| FitRow {
             points_per_px: r.points_per_px,
-            features: r.features(),
+            features: r.modelled_features(),
             median: r.err_median,
             p99: r.err_p99,
             total: r.err_total,
@@ -486,13 +518,21 @@ pub fn run(
             if reused { ", reused" } else { "" }
         ));
         // Each setting's config, or why it cannot render this scene.
+        let c = &scene.config;
+        let features = FrameProbe::new(&c.scene).features(&c.scene, &c.pose);
         let configs: Vec<Result<Config, String>> = raw
             .setting
             .iter()
-            .map(|s| with_setting(&scene, &s.render).map_err(|e| e.to_string()))
+            .map(|s| {
+                let mut cfg = with_setting(&scene, &s.render).map_err(|e| e.to_string())?;
+                if let Some(p) = s.rung {
+                    let model = ErrorModel::shipped().map_err(|e| e.to_string())?;
+                    let planner = Planner::new(&cfg.scene, &cfg.settings, Budget::default(), model);
+                    cfg.settings = planner.planned(&features, p);
+                }
+                Ok(cfg)
+            })
             .collect();
-        let c = &scene.config;
-        let features = FrameProbe::new(&c.scene).features(&c.scene, &c.pose);
         let mut renderer = Renderer::new(scene.config.settings.threads)?;
         let mut times = vec![Vec::new(); configs.len()];
         let mut frames: Vec<Option<Result<crate::render::Frame, String>>> =
@@ -551,16 +591,25 @@ pub fn run(
             };
             let (points_per_px, ladder) = match &configs[k] {
                 Ok(c) => match c.settings.points {
-                    crate::render::PointBudget::PerPixel(p) => {
-                        (p, c.settings == Planner::rung(&c.settings, p))
-                    }
+                    crate::render::PointBudget::PerPixel(p) => (
+                        p,
+                        s.rung.is_some() || c.settings == Planner::rung(&c.settings, p),
+                    ),
                     _ => (f64::NAN, false),
                 },
                 Err(_) => (f64::NAN, false),
             };
+            let map_filter = match &configs[k] {
+                Ok(c) => serde_json::to_value(c.settings.map_filter)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_string))
+                    .unwrap_or_else(pixel),
+                Err(_) => pixel(),
+            };
             let row = Row {
                 points_per_px,
                 ladder,
+                map_filter,
                 f_radius_px: features.radius_px,
                 f_lit_px: features.lit_px,
                 f_edge_px: features.edge_px,
@@ -570,6 +619,7 @@ pub fn run(
                 f_shadow_share: features.shadow_share,
                 f_nonlinear_albedo: features.nonlinear_albedo,
                 f_relief_texture: features.relief_texture,
+                f_relief: features.relief,
                 est_relief_p99,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),

@@ -12,6 +12,8 @@
 //! edge:        x = (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(g / 2) + 0.05))
 //! inside:      x = (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))
 //! reflectance: x = (1, ln p, ln(H + 1e-6))
+//! relief:      x = (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) + 0.05), P, P ln p)
+//!              (frames with a DEM alone)
 //! ```
 //!
 //! with `p` the quadrangles per pixel, `T` the texture (the relative change of albedo and of
@@ -26,6 +28,15 @@
 //! are fitted by least squares in logarithms (Levenberg-Marquardt, `fit_terms`), and `margin`
 //! is the largest ratio of measured to modelled error over the sweep's frames, so that the
 //! model is an upper bound on every frame it was fitted on.
+//!
+//! A frame with a DEM adds the relief term (`S` the share of the lit surface where the Sun or
+//! the camera is lower than the DEM's steep slopes, `R` the DEM's shading between pixels where
+//! the quadrangles carry it, 0 where each pixel reads it, and `P` 1 where each pixel reads it,
+//! [`Features::modelled`]). It is
+//! fitted on the sweep's frames with a DEM alone (`sweeps/budget_dem.toml`: the planner's own
+//! rungs, `rung = p`) over the three terms held fixed, and those frames get their own margin
+//! ([`FigureModel::relief_margin`]): the model of every frame without a DEM is what it was
+//! without them.
 //!
 //! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
@@ -103,6 +114,11 @@ pub struct Features {
     /// [`Regressors::Relief`] term and its own margin apply to such frames alone.
     #[serde(default)]
     pub relief: f64,
+    /// 1 where each pixel reads the relief over its footprint ([`MapFilter::Relief`], set by
+    /// [`Features::modelled`]), else 0: the relief's error is then the reads' (flat in the
+    /// quadrangles per pixel), not the quadrangles'.
+    #[serde(default)]
+    pub relief_per_pixel: f64,
 }
 
 impl Features {
@@ -116,6 +132,7 @@ impl Features {
             MapFilter::Relief => Features {
                 texture: (self.texture - self.relief_texture).max(0.0),
                 relief_texture: 0.0,
+                relief_per_pixel: self.relief,
                 ..*self
             },
             _ => *self,
@@ -146,9 +163,12 @@ pub enum Regressors {
     /// `(1, ln p, ln(H + 1e-6))`, `H` [`Features::nonlinear_albedo`]: the floor a reflectance
     /// that is not linear in the albedo leaves (nothing on a Lambertian body).
     Reflectance,
-    /// `(1, ln p, ln(S + 1e-3), ln(R + 1e-3))`, `S` [`Features::shadow_share`] and `R`
-    /// [`Features::relief_texture`] as modelled (0 where the relief is read over each pixel):
-    /// what a DEM adds, its shadows' edges and its shading where the quadrangles carry it.
+    /// `(1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) + 0.05), P, P ln p)`, `S`
+    /// [`Features::shadow_share`], `R` [`Features::relief_texture`] as modelled (0 where the
+    /// relief is read over each pixel), `g` the phase and `P`
+    /// [`Features::relief_per_pixel`]: what a DEM adds, its shadows' edges (more of them
+    /// towards the terminator) and its shading where the quadrangles carry it, or the
+    /// pixels' reads' error where they carry it.
     /// It is summed only on frames with a DEM ([`Features::relief`]), fitted on them alone
     /// after the other terms, and bounded by its own margin ([`FigureModel::relief_margin`]).
     Relief,
@@ -171,6 +191,9 @@ impl Regressors {
                 p,
                 (f.shadow_share + 1e-3).ln(),
                 (f.relief_texture + 1e-3).ln(),
+                ((0.5 * f.phase_deg.to_radians()).sin() + 0.05).ln(),
+                f.relief_per_pixel,
+                f.relief_per_pixel * p,
             ],
         }
     }
@@ -191,7 +214,7 @@ impl Regressors {
         ),
         (
             Regressors::Relief,
-            "relief: (1, ln p, ln(S + 1e-3), ln(R + 1e-3)), on frames with a DEM alone",
+            "relief: (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(phase / 2) + 0.05), P, P ln p), with a DEM alone",
         ),
     ];
 
@@ -767,15 +790,16 @@ const MAX_RELIEF_RADII: f64 = 0.02;
 const MIN_OPPOSITION_WIDTH: f64 = 0.01;
 
 /// Why a frame that reads a DEM (its shading by the DEM's normals, its shadows; per
-/// quadrangle or per pixel) does not claim the budget: the error model was fitted on frames
-/// without a DEM (`sweeps/budget.toml`, `sweeps/budget_hapke.toml`), and at 1024 x 1024 it
-/// predicted the NRHO's perilune frame at p99 2.3e-2 where it measured 6.3e-2 at the rung it
-/// took and the Artemis I close approach at total 3.7e-5 where it measured 1.8e-4
-/// (`sweeps/issue15_dem_1024.toml`; `docs/performance.md`, "The DEM at 1024 x 1024"). The
-/// frame keeps the model's rung and prediction: the top rung, which other frames outside the
-/// model take, costs a hundred times more there (16 per pixel at perilune; 4 per pixel took
-/// 18.6 s).
-pub const UNFITTED_DEM: &str = "the error model was not fitted on frames with a DEM: its rung is taken, its prediction not claimed";
+/// quadrangle or per pixel) does not claim the budget where the error model was not fitted
+/// on frames with such a DEM ([`ErrorModel::fitted_on_relief`]; a DEM that displaces the
+/// surface is never in its fit). A model fitted without a DEM (`sweeps/budget.toml`,
+/// `sweeps/budget_hapke.toml` alone) predicted the NRHO's perilune frame at 1024 x 1024 at
+/// p99 2.3e-2 where it measured 6.3e-2 at the rung it took, and the Artemis I close approach
+/// at total 3.7e-5 where it measured 1.8e-4 (`sweeps/issue15_dem_1024.toml`;
+/// `docs/performance.md`, "The DEM at 1024 x 1024"). The frame keeps the model's rung and
+/// prediction: the top rung, which other frames outside the model take, costs a hundred
+/// times more there (16 per pixel at perilune; 4 per pixel took 18.6 s).
+pub const UNFITTED_DEM: &str = "the error model was not fitted on frames with this kind of DEM: its rung is taken, its prediction not claimed";
 
 /// The quadrangles per pixel of the ladder's rungs, cheapest first.
 pub const LADDER: [f64; 9] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
@@ -937,6 +961,7 @@ impl FrameProbe {
             } else {
                 0.0
             },
+            relief_per_pixel: 0.0,
         }
     }
 }
@@ -1489,20 +1514,25 @@ mod tests {
         }
         let without = ErrorModel::fit(&rows).unwrap();
         assert!(!without.fitted_on_relief());
-        // The relief's own law: k . (1, ln p, ln(S + 1e-3), ln(R + 1e-3)).
-        let k = [-3.0, -0.6, 0.8, 0.4];
+        // The relief's own law: k . (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) +
+        // 0.05), P, P ln p).
+        let k = [-3.0, -0.6, 0.8, 0.4, 0.5, 1.0, 0.3];
         let mut with = rows.clone();
         for &s in &[0.01, 0.1, 0.3] {
-            for &rt in &[0.0, 0.02, 0.2] {
-                for &p in &LADDER {
-                    let mut r = plain(p, 0.05, 50.0);
-                    r.features.relief = 1.0;
-                    r.features.shadow_share = s;
-                    r.features.relief_texture = rt;
-                    let base = without.median.modelled(p, &r.features);
-                    let x = Regressors::Relief.values(p, &r.features);
-                    r.median = base + dot(&k, &x).exp();
-                    with.push(r);
+            for (rt, per_px) in [(0.0, 1.0), (0.02, 0.0), (0.2, 0.0)] {
+                for &g in &[30.0, 90.0, 130.0] {
+                    for &p in &LADDER {
+                        let mut r = plain(p, 0.05, 50.0);
+                        r.features.relief = 1.0;
+                        r.features.shadow_share = s;
+                        r.features.relief_texture = rt;
+                        r.features.relief_per_pixel = per_px;
+                        r.features.phase_deg = g;
+                        let base = without.median.modelled(p, &r.features);
+                        let x = Regressors::Relief.values(p, &r.features);
+                        r.median = base + dot(&k, &x).exp();
+                        with.push(r);
+                    }
                 }
             }
         }

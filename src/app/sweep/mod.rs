@@ -185,6 +185,7 @@ impl Row {
             nonlinear_albedo: self.f_nonlinear_albedo,
             relief_texture: self.f_relief_texture,
             relief: self.f_relief,
+            relief_per_pixel: 0.0,
         }
     }
 
@@ -225,7 +226,10 @@ pub fn model_text(m: &ErrorModel, how: &str) -> String {
          # on {} ladder frames. Each figure is e = margin * sum over its terms of exp(k . x), x one of\n\
          {kinds}\
          # (p quadrangles per pixel, T the texture, E the share of lit pixels on the limb or terminator,\n\
-         # H 1 where the albedo enters the reflectance non-linearly, as Hapke's w).\n\n{}",
+         # H 1 where the albedo enters the reflectance non-linearly, as Hapke's w; with a DEM, S the\n\
+         # share of the lit surface under its steep slopes' shadows, R its shading between pixels\n\
+         # where the quadrangles carry it, P 1 where each pixel reads it: each figure's relief term\n\
+         # and relief_margin are fitted on the frames with a DEM alone).\n\n{}",
         m.frames,
         m.to_toml()
     )

@@ -32,11 +32,10 @@
 //! A frame with a DEM adds the relief term (`S` the share of the lit surface where the Sun or
 //! the camera is lower than the DEM's steep slopes, `R` the DEM's shading between pixels where
 //! the quadrangles carry it, 0 where each pixel reads it, and `P` 1 where each pixel reads it,
-//! [`Features::modelled`]). It is
-//! fitted on the sweep's frames with a DEM alone (`sweeps/budget_dem.toml`: the planner's own
-//! rungs, `rung = p`) over the three terms held fixed, and those frames get their own margin
-//! ([`FigureModel::relief_margin`]): the model of every frame without a DEM is what it was
-//! without them.
+//! [`Features::modelled`]). It is fitted on the sweep's frames with a DEM alone
+//! (`sweeps/budget_dem.toml`: the planner's own rungs, `rung = p`) over the three terms held
+//! fixed, and those frames get their own margin ([`FigureModel::relief_margin`]): the model
+//! of every frame without a DEM is what it was without them.
 //!
 //! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
@@ -168,9 +167,9 @@ pub enum Regressors {
     /// relief is read over each pixel), `g` the phase and `P`
     /// [`Features::relief_per_pixel`]: what a DEM adds, its shadows' edges (more of them
     /// towards the terminator) and its shading where the quadrangles carry it, or the
-    /// pixels' reads' error where they carry it.
-    /// It is summed only on frames with a DEM ([`Features::relief`]), fitted on them alone
-    /// after the other terms, and bounded by its own margin ([`FigureModel::relief_margin`]).
+    /// pixels' reads' error where they carry it. It is summed only on frames with a DEM
+    /// ([`Features::relief`]), fitted on them alone after the other terms, and bounded by its
+    /// own margin ([`FigureModel::relief_margin`]).
     Relief,
 }
 
@@ -1122,7 +1121,6 @@ impl Planner {
             base: base.clone(),
             probe: FrameProbe::new(scene),
             has_horizon: scene.body.relief.as_ref().is_some_and(|r| r.has_horizon()),
-
             finest_over_map_texels: match (&scene.body.relief, &scene.body.albedo_map) {
                 (Some(r), Some(a)) if !r.displaces() => {
                     Some((r.heights_m.spacing_rad().1 / a.map.spacing_rad().1).min(1.0))

@@ -1153,15 +1153,16 @@ impl Planner {
         }
     }
 
-    /// The ladder's rung at `points_per_px` as the planner renders a frame showing
-    /// `features` within the model's domain: with the shadows ([`Planner::shadowing`]) and
-    /// the map filter ([`Planner::map_filter`]) it takes for that frame. The sweep renders
-    /// these (`rung = p` in a sweep file) to fit the model on what the planner renders.
-    pub fn planned(&self, features: &Features, points_per_px: f64) -> Settings {
+    /// The ladder's rung at `points_per_px` over `base` as the planner renders a frame
+    /// showing `features` within the model's domain: with the shadows
+    /// ([`Planner::shadowing`]) and the map filter ([`Planner::map_filter`]) it takes for
+    /// that frame. The sweep renders these (`rung = p` in a sweep file, over the setting's
+    /// own keys) to fit the model on what the planner renders.
+    pub fn planned(&self, base: &Settings, features: &Features, points_per_px: f64) -> Settings {
         Settings {
             self_shadowing: self.shadowing(features),
             map_filter: self.map_filter(features),
-            ..Planner::rung(&self.base, points_per_px)
+            ..Planner::rung(base, points_per_px)
         }
     }
 
@@ -1363,7 +1364,7 @@ impl Planner {
         let outside = outside.or(unfitted);
         let settings = Settings {
             self_shadowing: shadows,
-            ..self.planned(&features, ppp)
+            ..self.planned(&self.base, &features, ppp)
         };
         Plan {
             points_per_pixel: ppp,

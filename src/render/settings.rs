@@ -2,7 +2,7 @@
 
 use super::gridding::Gridding;
 use super::reconstruction::Reconstruction;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// How many quadrangles to sample.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -77,7 +77,7 @@ pub enum SelfShadowing {
 }
 
 /// How a quadrangle reads the albedo map (paper Sec. 4.4 samples it at the centre).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MapFilter {
     /// The map's value at the quadrangle's centre (bilinear between texels): aliases once a

@@ -133,11 +133,11 @@ pub struct Row {
     /// `--fit` fits the error model on.
     pub points_per_px: f64,
     pub ladder: bool,
-    /// The setting's map filter (`MapFilter`, snake case; "pixel" in the CSVs written before
-    /// the column existed, none of whose ladder rows read the relief per pixel): under
-    /// "relief" the model reads the map's texture alone ([`Features::modelled`]).
+    /// The setting's map filter ("pixel" in the CSVs written before the column existed, none
+    /// of whose ladder rows read the relief per pixel): under "relief" the model reads the
+    /// map's texture alone ([`Features::modelled`]).
     #[serde(default = "pixel")]
-    pub map_filter: String,
+    pub map_filter: MapFilter,
     /// What the frame shows ([`crate::fidelity::budget::Features`]).
     pub f_radius_px: f64,
     pub f_lit_px: f64,
@@ -166,8 +166,8 @@ fn nan() -> f64 {
     f64::NAN
 }
 
-fn pixel() -> String {
-    "pixel".into()
+fn pixel() -> MapFilter {
+    MapFilter::Pixel
 }
 
 impl Row {
@@ -191,13 +191,7 @@ impl Row {
 
     /// The features the error model reads for this row's setting ([`Features::modelled`]).
     pub fn modelled_features(&self) -> Features {
-        let filter = match self.map_filter.as_str() {
-            "relief" => MapFilter::Relief,
-            "area" => MapFilter::Area,
-            "point" => MapFilter::Point,
-            _ => MapFilter::Pixel,
-        };
-        self.features().modelled(filter)
+        self.features().modelled(self.map_filter)
     }
 }
 
@@ -524,15 +518,25 @@ pub fn run(
         // Each setting's config, or why it cannot render this scene.
         let c = &scene.config;
         let features = FrameProbe::new(&c.scene).features(&c.scene, &c.pose);
+        // The planner of the scene, for the settings that are its rungs (`rung = p`).
+        let planner = if raw.setting.iter().any(|s| s.rung.is_some()) {
+            let model = ErrorModel::shipped().map_err(|e| AppError::Sweep(e.to_string()))?;
+            Some(Planner::new(
+                &c.scene,
+                &c.settings,
+                Budget::default(),
+                model,
+            ))
+        } else {
+            None
+        };
         let configs: Vec<Result<Config, String>> = raw
             .setting
             .iter()
             .map(|s| {
                 let mut cfg = with_setting(&scene, &s.render).map_err(|e| e.to_string())?;
-                if let Some(p) = s.rung {
-                    let model = ErrorModel::shipped().map_err(|e| e.to_string())?;
-                    let planner = Planner::new(&cfg.scene, &cfg.settings, Budget::default(), model);
-                    cfg.settings = planner.planned(&features, p);
+                if let (Some(p), Some(planner)) = (s.rung, &planner) {
+                    cfg.settings = planner.planned(&cfg.settings, &features, p);
                 }
                 Ok(cfg)
             })
@@ -603,13 +607,9 @@ pub fn run(
                 },
                 Err(_) => (f64::NAN, false),
             };
-            let map_filter = match &configs[k] {
-                Ok(c) => serde_json::to_value(c.settings.map_filter)
-                    .ok()
-                    .and_then(|v| v.as_str().map(str::to_string))
-                    .unwrap_or_else(pixel),
-                Err(_) => pixel(),
-            };
+            let map_filter = configs[k]
+                .as_ref()
+                .map_or(MapFilter::Pixel, |c| c.settings.map_filter);
             let row = Row {
                 points_per_px,
                 ladder,

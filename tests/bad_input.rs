@@ -173,6 +173,12 @@ fn out_of_range_values_name_file_key_value_and_allowed() {
     );
     invalid(
         "[render]",
+        "[render]\nrelief_refine = 3",
+        "render.relief_refine",
+        &["3", "1, 2, 4 or 8"],
+    );
+    invalid(
+        "[render]",
         "[render]\ngridding = \"gaussian\"\ngaussian_window_px = 4",
         "render.gaussian_window_px",
         &["odd"],

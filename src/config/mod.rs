@@ -1694,6 +1694,12 @@ impl Validator<'_> {
                 ],
             )?;
         }
+        if let Some(k) = r.relief_refine {
+            if ![1, 2, 4, 8].contains(&k) {
+                return self.err("render.relief_refine", k, "1, 2, 4 or 8");
+            }
+            s.relief_refine = k as u32;
+        }
         // Under `map_filter = "relief"` the quadrangles integrate the smooth shape.
         let relief_on_quadrangles = s.map_filter != crate::render::MapFilter::Relief;
         if s.integration == Integration::Exact

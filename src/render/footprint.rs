@@ -90,6 +90,14 @@
 //! 1.0 -> 0.245, for 9 % of the budgeted file's median frame (`docs/performance.md`, "A
 //! shadow's edge between the reads").
 //!
+//! Where even that leaves a pixel's reads disagreeing (`relief_refine` above 1), the pixel
+//! whose reads' own estimate is above [`REFINE_ABOVE`] is read again on a lattice of its own
+//! twice as fine per side, and again while its estimate stays above, up to `relief_refine`
+//! times per side ([`Step::refine`]); a limb pixel casts `relief_refine` times the lines of
+//! sight per side. The NRHO's far frames' p99 from 0.10-0.17 to 2.6e-2-3.8e-2 at 4, for 5
+//! to 7 times the time (`docs/performance.md`, "Pixels read again where their reads
+//! disagree").
+//!
 //! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
 //! of their own, `[[body.band_map]]`) share the lines of sight, the blocks and the reads'
 //! positions and weights, decided on the finest map's texels; only the map reads (and
@@ -124,8 +132,20 @@ const READ_SPACING_TEXELS: f64 = 0.5;
 /// read takes the area-averaged level of its share of the footprint.
 const MAX_READS: usize = 8;
 
-/// Lines of sight per side of a pixel whose reads are cast ([`Step::cast_pixel`]).
+/// Lines of sight per side of a pixel whose reads are cast ([`Step::cast_pixel`]); under
+/// `MapFilter::Relief` times the frame's `relief_refine`, at most [`MAX_CAST`].
 const CAST: usize = 8;
+
+/// The most lines of sight per side of a cast pixel under `relief_refine`.
+const MAX_CAST: usize = 32;
+
+/// Under `MapFilter::Relief` with `relief_refine` above 1: a pixel whose reads' own error
+/// estimate ([`relief_estimate`]) exceeds this is read again on a lattice twice as fine per
+/// side, and again while it still does, up to `relief_refine` times the first reads per side
+/// ([`Step::refine`]). A third of the p99 budget's default (3e-2). On the NRHO's apolune
+/// frame 3e-3 re-read 2.9 times the pixels (14,328 of 28,603 against 4,945) for p99 6.7e-2
+/// against 6.8e-2 (re-read twice as finely, the limb cast 8 x 8).
+pub const REFINE_ABOVE: f64 = 1e-2;
 
 /// The cosine a single pixel's Hapke ratio is taken at, at least, where its line of sight
 /// grazes or misses the body or the light.
@@ -196,6 +216,9 @@ struct Step<'a> {
     /// Under `MapFilter::Relief`: the relief whose shading and shadows every read carries
     /// (the quadrangles integrated the smooth shape), and how it hides the Sun and the camera.
     shading: Option<(&'a Relief, SelfShadowing)>,
+    /// Under `shading`: the most the reads are refined per side where their own estimate
+    /// is above [`REFINE_ABOVE`], and the factor of a cast pixel's lines of sight (1: off).
+    refine: usize,
     /// `A_sun A_cam` [m^4] of Eq. 12, with which a pixel near the smooth terminator is
     /// taken from its reads alone ([`Step::absolute_scale`]).
     a_sun_cam_m4: f64,
@@ -551,14 +574,16 @@ impl Step<'_> {
         let w = band.width;
         let k = CAST as f64;
         if let Some(shading) = self.shading {
+            let cast = (CAST * self.refine).min(MAX_CAST);
+            let k = cast as f64;
             // The reads on a `CAST x CAST` lattice over the pixel (`None` where the line of
             // sight misses the body), a shadow's edge placed between them as over a block
             // ([`lit_shares`]); the block's lattice is free (a lone pixel builds none).
             band.clear_lattice();
             // The reads' footprint: the first hit's (it changes little within a pixel).
             let mut read_rad = None;
-            for j in 0..CAST * CAST {
-                let (a, b) = ((j % CAST) as f64, (j / CAST) as f64);
+            for j in 0..cast * cast {
+                let (a, b) = ((j % cast) as f64, (j / cast) as f64);
                 let p = self.probe(i as f64 + (a + 0.5) / k, v - 0.5 + (b + 0.5) / k);
                 let read = p.hit.then(|| {
                     read_rad.get_or_insert(p.footprint_rad / k);
@@ -566,7 +591,7 @@ impl Step<'_> {
                 });
                 band.push_read((p.lon, p.lat), read);
             }
-            band.place_edges(shading, (CAST, CAST));
+            band.place_edges(shading, (cast, cast));
             band.reads.clear();
             band.relief.clear();
             band.lit.clear();
@@ -578,7 +603,7 @@ impl Step<'_> {
                 }
             }
             band.lattice.clear();
-            let got = self.relief_pixel(band, read_rad.unwrap_or(0.0), None, CAST * CAST);
+            let got = self.relief_pixel(band, read_rad.unwrap_or(0.0), None, cast * cast);
             if got.read {
                 self.set_relief_pixel(band, &got, i, r);
             } else {
@@ -699,6 +724,8 @@ struct Band<'a> {
     lattice: Vec<Option<ReliefRead>>,
     lattice_at: Vec<(f64, f64)>,
     lattice_lit: Vec<f64>,
+    /// A block's pixels to be read again ([`Step::refine`]).
+    refine: Vec<(usize, usize)>,
     /// Under `MapFilter::Relief`: the band's rows of the reads' own error estimate per pixel
     /// ([`Step::relief_pixel`]); empty otherwise.
     estimate: &'a mut [f64],
@@ -737,9 +764,10 @@ impl Band<'_> {
 }
 
 impl Step<'_> {
-    /// The reads of the block of pixels `(x0, y0)` to `(x1, y1)` (band rows, exclusive; map
-    /// coordinates bilinear in `lon`, `lat` over `n` px) under `MapFilter::Relief`: `(ns, nt)`
-    /// per pixel at `band.offsets`, the midpoints of one lattice over the block, into `band.lattice` (`None`
+    /// The reads of the pixels `(xa, ya)` to `(xb, yb)` (band rows, exclusive) of the block
+    /// whose top-left pixel is `(x0, y0)` (map coordinates bilinear in `lon`, `lat` over its
+    /// `n` px) under `MapFilter::Relief`: `(ns, nt)`
+    /// per pixel at `band.offsets`, the midpoints of one lattice over them, into `band.lattice` (`None`
     /// for a pixel that is dark and whose interpolated `mu0`, with `mu0_per_px` of margin,
     /// says it is on the night side), each with its lit share ([`lit_shares`], edges
     /// between the reads of neighbouring pixels included; under the horizon map, each
@@ -750,21 +778,21 @@ impl Step<'_> {
         band: &mut Band,
         shading: (&Relief, SelfShadowing),
         (x0, y0): (usize, usize),
-        (x1, y1): (usize, usize),
+        ((xa, ya), (xb, yb)): ((usize, usize), (usize, usize)),
         (lon, lat): ([f64; 4], [f64; 4]),
         (ns, nt): (usize, usize),
         n: f64,
         mu0_per_px: f64,
         mu0: [f64; 4],
     ) {
-        let (lw, lh) = ((x1 - x0) * ns, (y1 - y0) * nt);
+        let (lw, lh) = ((xb - xa) * ns, (yb - ya) * nt);
         let w = band.width;
         band.clear_lattice();
         for jy in 0..lh {
-            let (r, b) = (y0 + jy / nt, jy % nt);
+            let (r, b) = (ya + jy / nt, jy % nt);
             let t = (r - y0) as f64 / n;
             for jx in 0..lw {
-                let (i, a) = (x0 + jx / ns, jx % ns);
+                let (i, a) = (xa + jx / ns, jx % ns);
                 let s = (i - x0) as f64 / n;
                 let (du, dv) = band.offsets[b * ns + a];
                 let (u, v) = (s + du, t + dv);
@@ -930,7 +958,7 @@ impl Step<'_> {
                             band,
                             shading,
                             (x0, y0),
-                            (x1, y1),
+                            ((x0, y0), (x1, y1)),
                             (lon, lat),
                             (ns, nt),
                             n,
@@ -953,6 +981,11 @@ impl Step<'_> {
                         }
                     }
                     let got = self.relief_pixel(band, read_rad, Some((ns, nt)), ns * nt);
+                    if self.refine > 1 && got.estimate > REFINE_ABOVE {
+                        // Read again once the block's lattice has served all its pixels.
+                        band.refine.push((i, r));
+                        continue;
+                    }
                     self.set_relief_pixel(band, &got, i, r);
                     band.estimate[r * w + i] = got.estimate;
                     continue;
@@ -998,7 +1031,97 @@ impl Step<'_> {
                 }
             }
         }
+        if let Some(shading) = self.shading
+            && !band.refine.is_empty()
+        {
+            let geometry = BlockGeometry {
+                origin: (x0, y0),
+                lon,
+                lat,
+                reads: (ns, nt),
+                n,
+                mu0_per_px,
+                mu0,
+                read_rad,
+            };
+            self.refine(band, shading, &geometry);
+        }
     }
+
+    /// Reads again the pixels of a block left in `band.refine` (their reads' own estimate
+    /// above [`REFINE_ABOVE`]), each on a lattice of its own twice as fine per side as
+    /// before, while its estimate stays above it and up to `self.refine` times the block's
+    /// reads per side, and scales them. A pixel's reads are the same as a block's
+    /// ([`Step::read_lattice`]: each its own shadow rays, the shadows' edges placed between
+    /// them), only denser: the pixels a shadow's edge crosses, where an all-or-nothing read
+    /// converges as its spacing (`docs/performance.md`, "Pixels read again where their
+    /// reads disagree").
+    fn refine(&self, band: &mut Band, shading: (&Relief, SelfShadowing), g: &BlockGeometry) {
+        let w = band.width;
+        let mut pending = std::mem::take(&mut band.refine);
+        let mut f = 2;
+        while f <= self.refine && !pending.is_empty() {
+            let (ms, mt) = (g.reads.0 * f, g.reads.1 * f);
+            band.offsets.clear();
+            for b in 0..mt {
+                for a in 0..ms {
+                    let o = |k: usize, m: usize| ((k as f64 + 0.5) / m as f64 - 0.5) / g.n;
+                    band.offsets.push((o(a, ms), o(b, mt)));
+                }
+            }
+            let last = 2 * f > self.refine;
+            let mut k = 0;
+            while k < pending.len() {
+                let (i, r) = pending[k];
+                self.read_lattice(
+                    band,
+                    shading,
+                    g.origin,
+                    ((i, r), (i + 1, r + 1)),
+                    (g.lon, g.lat),
+                    (ms, mt),
+                    g.n,
+                    g.mu0_per_px,
+                    g.mu0,
+                );
+                band.reads.clear();
+                band.relief.clear();
+                band.lit.clear();
+                for (j, read) in band.lattice.iter().enumerate() {
+                    band.reads.push(band.lattice_at[j]);
+                    band.lit.push(band.lattice_lit[j]);
+                    if let Some(read) = read {
+                        band.relief.push(*read);
+                    }
+                }
+                let got = self.relief_pixel(band, g.read_rad / f as f64, Some((ms, mt)), ms * mt);
+                if last || got.estimate <= REFINE_ABOVE {
+                    self.set_relief_pixel(band, &got, i, r);
+                    band.estimate[r * w + i] = got.estimate;
+                    pending.swap_remove(k);
+                } else {
+                    k += 1;
+                }
+            }
+            f *= 2;
+        }
+        band.lattice.clear();
+        pending.clear();
+        band.refine = pending;
+    }
+}
+
+/// A block's map coordinates and light at its corners, and its reads, for the pixels read
+/// again ([`Step::refine`]).
+struct BlockGeometry {
+    origin: (usize, usize),
+    lon: [f64; 4],
+    lat: [f64; 4],
+    reads: (usize, usize),
+    n: f64,
+    mu0_per_px: f64,
+    mu0: [f64; 4],
+    read_rad: f64,
 }
 
 /// `first` where it is lit and seen, else the most lit and visible of `others` (by
@@ -1240,6 +1363,7 @@ pub fn apply(
     shape: &Shape,
     relief: Option<&Relief>,
     shading: Option<(&Relief, SelfShadowing)>,
+    relief_refine: u32,
     brdf_ref: &Brdf,
     albedo: &AlbedoMap,
     pose: &Pose,
@@ -1252,6 +1376,7 @@ pub fn apply(
         shape,
         relief,
         shading,
+        relief_refine,
         brdf_ref,
         pose,
         a_sun_cam_m4,
@@ -1275,6 +1400,7 @@ pub fn apply_maps(
     shape: &Shape,
     relief: Option<&Relief>,
     shading: Option<(&Relief, SelfShadowing)>,
+    relief_refine: u32,
     brdf_ref: &Brdf,
     pose: &Pose,
     a_sun_cam_m4: f64,
@@ -1310,6 +1436,7 @@ pub fn apply_maps(
         // footprint by a few percent at most, which only picks the map level).
         ifov: (1.0 / (fx * fy)).sqrt(),
         shading,
+        refine: relief_refine.max(1) as usize,
         a_sun_cam_m4,
     };
     let bw = w.div_ceil(BLOCK);
@@ -1359,6 +1486,7 @@ pub fn apply_maps(
                 lattice: Vec::new(),
                 lattice_at: Vec::new(),
                 lattice_lit: Vec::new(),
+                refine: Vec::new(),
                 estimate,
             };
             for bx in 0..bw {

@@ -169,6 +169,11 @@ pub struct Settings {
     pub self_shadowing: SelfShadowing,
     /// How quadrangles read the albedo map.
     pub map_filter: MapFilter,
+    /// Under `MapFilter::Relief`: how much finer, per side, the reads of a pixel a shadow's
+    /// edge crosses may get (1: never; 2, 4, ...: read again twice as finely while their own
+    /// estimate is above [`super::footprint::REFINE_ABOVE`]), and the factor of the lines of
+    /// sight a limb pixel casts (8 x 8 times it, at most 32 x 32).
+    pub relief_refine: u32,
     /// Mesh bodies ([`crate::raycast::sampled`]): rays per pixel side everywhere.
     pub raycast_samples: u32,
     /// Mesh bodies: rays per pixel side in pixels at the limb and at the edges of the light.
@@ -220,6 +225,7 @@ impl Default for Settings {
             depth: false,
             self_shadowing: SelfShadowing::Off,
             map_filter: MapFilter::Area,
+            relief_refine: 1,
             raycast_samples: 1,
             raycast_edge_samples: 4,
             raycast_quadratic_light: true,

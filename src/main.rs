@@ -137,6 +137,10 @@ enum Command {
         /// Which reference (as `render --reference-method`).
         #[arg(long, value_enum, default_value = "auto")]
         reference_method: optistim::raycast::reference::ReferenceMethod,
+        /// `[render]` keys over the scene file's for the frames, as TOML (e.g.
+        /// "relief_refine = 4"); the references, which read none, stay the file's (cached).
+        #[arg(long, default_value = "")]
+        render: String,
     },
     /// Fits the fidelity planner's error model on the ladder rows of one or more sweep CSVs.
     FitModel {
@@ -481,8 +485,9 @@ fn run() -> anyhow::Result<()> {
             tolerance,
             max_depth,
             reference_method,
+            render,
         } => {
-            let cfg = config::load(&scene)?;
+            let cfg = config::load_with_render(&scene, &render)?;
             let reference = optistim::raycast::reference::ReferenceSettings {
                 tolerance,
                 max_depth,

@@ -355,3 +355,32 @@ fn the_binary_names_a_missing_file_once_and_survives_a_closed_stdout() {
     assert_eq!(out.status.code(), Some(0), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `optistim verify-budget --render`: `[render]` keys over a scene file's for one run. They
+/// override the file's (here its `points_per_pixel`, and a key it does not set), an invalid
+/// value is refused as in the file itself, and text that is not TOML names `--render`.
+#[test]
+fn render_keys_given_beside_a_file_override_its_own() {
+    let dir = std::env::temp_dir().join(format!("optistim-render-keys-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, SceneSpec::default().toml()).unwrap();
+    let plain = config::load_with_render(&path, "").unwrap();
+    assert_eq!(plain.settings, config::load(&path).unwrap().settings);
+    let cfg = config::load_with_render(&path, "points_per_pixel = 2.0\nrelief_refine = 4").unwrap();
+    assert_eq!(
+        cfg.settings.points,
+        optistim::render::PointBudget::PerPixel(2.0)
+    );
+    assert_eq!(cfg.settings.relief_refine, 4);
+    assert_ne!(plain.settings.points, cfg.settings.points);
+    match config::load_with_render(&path, "relief_refine = 5") {
+        Err(ConfigError::Invalid { key, .. }) => assert_eq!(key, "render.relief_refine"),
+        other => panic!("{other:?}"),
+    }
+    match config::load_with_render(&path, "relief_refine = ") {
+        Err(ConfigError::Parse { file, .. }) => assert_eq!(file, "--render"),
+        other => panic!("{other:?}"),
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

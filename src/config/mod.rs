@@ -110,6 +110,47 @@ pub fn load(path: &Path) -> Result<Config, ConfigError> {
     parse(&text, &file)
 }
 
+/// [`load`] with `render` (TOML, the keys of a `[render]` table) over the file's `[render]`:
+/// a setting changed for one run without a copy of the file (`optistim verify-budget
+/// --render`, whose references, keyed by the file's own text, are then reused).
+pub fn load_with_render(path: &Path, render: &str) -> Result<Config, ConfigError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        file: file.clone(),
+        source,
+    })?;
+    let table = |text: &str, file: &str| {
+        toml::from_str::<toml::Table>(text).map_err(|e| ConfigError::Parse {
+            file: file.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })
+    };
+    let mut scene = table(&text, &file)?;
+    let mut patch = toml::Table::new();
+    patch.insert(
+        "render".into(),
+        toml::Value::Table(table(render, "--render")?),
+    );
+    merge_toml(&mut scene, &patch);
+    let text = toml::to_string(&scene).map_err(|e| ConfigError::Parse {
+        file: file.clone(),
+        message: e.to_string(),
+    })?;
+    parse(&text, &file)
+}
+
+/// Deep-merges `patch` into `base` (tables merge key by key; anything else is replaced).
+pub fn merge_toml(base: &mut toml::Table, patch: &toml::Table) {
+    for (k, v) in patch {
+        match (base.get_mut(k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(p)) => merge_toml(b, p),
+            _ => {
+                base.insert(k.clone(), v.clone());
+            }
+        }
+    }
+}
+
 /// Parses and validates scene text; `file` names it in errors.
 pub fn parse(text: &str, file: &str) -> Result<Config, ConfigError> {
     let raw: RawScene = toml::from_str(text).map_err(|e| ConfigError::Parse {

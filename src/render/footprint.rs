@@ -91,12 +91,13 @@
 //! shadow's edge between the reads").
 //!
 //! Where even that leaves a pixel's reads disagreeing (`relief_refine` above 1), the pixel
-//! whose reads' own estimate is above [`REFINE_ABOVE`] is read again on a lattice of its own
-//! twice as fine per side, and again while its estimate stays above, up to `relief_refine`
-//! times per side ([`Step::refine`]); a limb pixel casts `relief_refine` times the lines of
-//! sight per side. The NRHO's far frames' p99 from 0.10-0.17 to 2.6e-2-3.8e-2 at 4, for 5
-//! to 7 times the time (`docs/performance.md`, "Pixels read again where their reads
-//! disagree").
+//! whose reads' own estimate is above [`REFINE_ABOVE`], or whose reads and the ring around
+//! them hold both light and shadow, is read again on a lattice of its own twice as fine per
+//! side, and again while its light still moves, up to `relief_refine` times per side
+//! ([`Step::refine`]); the blocks' lattices then reach one read beyond each side, and a limb
+//! pixel casts `relief_refine` times the lines of sight per side. The NRHO's far frames'
+//! p99 from 0.10-0.17 to 2.2e-2-2.9e-2 at 8, for 7.5 to 9.7 times the time
+//! (`docs/performance.md`, "Pixels read again where their reads disagree").
 //!
 //! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
 //! of their own, `[[body.band_map]]`) share the lines of sight, the blocks and the reads'
@@ -140,10 +141,11 @@ const CAST: usize = 8;
 const MAX_CAST: usize = 32;
 
 /// Under `MapFilter::Relief` with `relief_refine` above 1: a pixel whose reads' own error
-/// estimate ([`relief_estimate`]) exceeds this is read again on a lattice twice as fine per
-/// side, and again while it still does, up to `relief_refine` times the first reads per side
-/// ([`Step::refine`]). A third of the p99 budget's default (3e-2). On the NRHO's apolune
-/// frame 3e-3 re-read 2.9 times the pixels (14,328 of 28,603 against 4,945) for p99 6.7e-2
+/// estimate ([`relief_estimate`]) exceeds this, or whose reads hold light and shadow
+/// ([`mixed`]), is read again on a lattice twice as fine per side, and again while it still
+/// does, up to `relief_refine` times the first reads per side ([`Step::refine`]). A third
+/// of the p99 budget's default (3e-2). On the NRHO's apolune frame, by the estimate alone,
+/// 3e-3 re-read 2.9 times the pixels (14,328 of 28,603 against 4,945) for p99 6.7e-2
 /// against 6.8e-2 (re-read twice as finely, the limb cast 8 x 8).
 pub const REFINE_ABOVE: f64 = 1e-2;
 
@@ -725,7 +727,7 @@ struct Band<'a> {
     lattice_at: Vec<(f64, f64)>,
     lattice_lit: Vec<f64>,
     /// A block's pixels to be read again ([`Step::refine`]).
-    refine: Vec<(usize, usize)>,
+    refine: Vec<(usize, usize, f64, bool)>,
     /// Under `MapFilter::Relief`: the band's rows of the reads' own error estimate per pixel
     /// ([`Step::relief_pixel`]); empty otherwise.
     estimate: &'a mut [f64],
@@ -764,41 +766,63 @@ impl Band<'_> {
 }
 
 impl Step<'_> {
-    /// The reads of the pixels `(xa, ya)` to `(xb, yb)` (band rows, exclusive) of the block
-    /// whose top-left pixel is `(x0, y0)` (map coordinates bilinear in `lon`, `lat` over its
-    /// `n` px) under `MapFilter::Relief`: `(ns, nt)`
-    /// per pixel at `band.offsets`, the midpoints of one lattice over them, into `band.lattice` (`None`
+    /// The reads a block's lattice ([`Step::read_lattice`]) takes beyond the block on each
+    /// side: one under `relief_refine` (so that a pixel at the block's side sees its
+    /// neighbour's reads in the next block, [`mixed`], and a shadow's edge between them is
+    /// placed), else none (as before `relief_refine`: the frames the error model was fitted
+    /// on).
+    fn ring(&self) -> usize {
+        usize::from(self.refine > 1)
+    }
+
+    /// The reads of the block of pixels `(x0, y0)` to `(x1, y1)` (band rows, exclusive; map
+    /// coordinates bilinear in `lon`, `lat` over `n` px) under `MapFilter::Relief`: `(ns, nt)`
+    /// per pixel at `band.offsets`, the midpoints of one lattice over the block, into `band.lattice` (`None`
     /// for a pixel that is dark and whose interpolated `mu0`, with `mu0_per_px` of margin,
     /// says it is on the night side), each with its lit share ([`lit_shares`], edges
     /// between the reads of neighbouring pixels included; under the horizon map, each
-    /// read's own answer).
+    /// read's own answer), with [`Step::ring`] reads more around the block on each side.
     #[allow(clippy::too_many_arguments)]
     fn read_lattice(
         &self,
         band: &mut Band,
         shading: (&Relief, SelfShadowing),
         (x0, y0): (usize, usize),
-        ((xa, ya), (xb, yb)): ((usize, usize), (usize, usize)),
+        (x1, y1): (usize, usize),
         (lon, lat): ([f64; 4], [f64; 4]),
         (ns, nt): (usize, usize),
         n: f64,
         mu0_per_px: f64,
         mu0: [f64; 4],
     ) {
-        let (lw, lh) = ((xb - xa) * ns, (yb - ya) * nt);
+        let ring = self.ring();
+        let (lw, lh) = ((x1 - x0) * ns + 2 * ring, (y1 - y0) * nt + 2 * ring);
         let w = band.width;
         band.clear_lattice();
+        // Read `j` along an axis of `m` reads a pixel: the pixel (from the block's first, -1
+        // for the ring before it) and the read within it.
+        let split = |j: usize, m: usize| {
+            let j = j as isize - ring as isize;
+            (j.div_euclid(m as isize), j.rem_euclid(m as isize) as usize)
+        };
         for jy in 0..lh {
-            let (r, b) = (ya + jy / nt, jy % nt);
-            let t = (r - y0) as f64 / n;
+            let (pr, b) = split(jy, nt);
+            let t = pr as f64 / n;
             for jx in 0..lw {
-                let (i, a) = (xa + jx / ns, jx % ns);
-                let s = (i - x0) as f64 / n;
+                let (pc, a) = split(jx, ns);
+                let s = pc as f64 / n;
                 let (du, dv) = band.offsets[b * ns + a];
                 let (u, v) = (s + du, t + dv);
                 let at = (lerp(lon, u, v), lerp(lat, u, v));
-                let skip = band.pixels.iter().all(|img| img[r * w + i] == 0.0)
-                    && lerp(mu0, s, t) + mu0_per_px <= 0.0;
+                // A read of the ring (outside the block) is taken as over a dark pixel.
+                let dark = match (usize::try_from(pc), usize::try_from(pr)) {
+                    (Ok(c), Ok(r)) if x0 + c < x1 && y0 + r < y1 => band
+                        .pixels
+                        .iter()
+                        .all(|img| img[(y0 + r) * w + x0 + c] == 0.0),
+                    _ => true,
+                };
+                let skip = dark && lerp(mu0, s, t) + mu0_per_px <= 0.0;
                 let read = (!skip).then(|| self.relief_read(shading.0, shading.1, at));
                 band.push_read(at, read);
             }
@@ -958,7 +982,7 @@ impl Step<'_> {
                             band,
                             shading,
                             (x0, y0),
-                            ((x0, y0), (x1, y1)),
+                            (x1, y1),
                             (lon, lat),
                             (ns, nt),
                             n,
@@ -966,13 +990,16 @@ impl Step<'_> {
                             mu0,
                         );
                     }
-                    let lw = (x1 - x0) * ns;
+                    let ring = self.ring();
+                    let (lw, lh) = ((x1 - x0) * ns + 2 * ring, (y1 - y0) * nt + 2 * ring);
+                    // The pixel's first read on the lattice, along each axis.
+                    let (ca, rb) = ((i - x0) * ns + ring, (r - y0) * nt + ring);
                     band.reads.clear();
                     band.relief.clear();
                     band.lit.clear();
                     for b in 0..nt {
                         for a in 0..ns {
-                            let q = ((r - y0) * nt + b) * lw + (i - x0) * ns + a;
+                            let q = (rb + b) * lw + ca + a;
                             band.reads.push(band.lattice_at[q]);
                             band.lit.push(band.lattice_lit[q]);
                             if let Some(read) = &band.lattice[q] {
@@ -981,9 +1008,19 @@ impl Step<'_> {
                         }
                     }
                     let got = self.relief_pixel(band, read_rad, Some((ns, nt)), ns * nt);
-                    if self.refine > 1 && got.estimate > REFINE_ABOVE {
+                    if self.refine > 1
+                        && (got.estimate > REFINE_ABOVE
+                            || mixed(
+                                &band.lattice,
+                                &band.lattice_lit,
+                                lw,
+                                (ca.saturating_sub(1), (ca + ns + 1).min(lw)),
+                                (rb.saturating_sub(1), (rb + nt + 1).min(lh)),
+                            ))
+                    {
                         // Read again once the block's lattice has served all its pixels.
-                        band.refine.push((i, r));
+                        let factor = band.sums.first().copied().unwrap_or(0.0);
+                        band.refine.push((i, r, factor, got.absolute));
                         continue;
                     }
                     self.set_relief_pixel(band, &got, i, r);
@@ -1040,8 +1077,6 @@ impl Step<'_> {
                 lat,
                 reads: (ns, nt),
                 n,
-                mu0_per_px,
-                mu0,
                 read_rad,
             };
             self.refine(band, shading, &geometry);
@@ -1049,57 +1084,66 @@ impl Step<'_> {
     }
 
     /// Reads again the pixels of a block left in `band.refine` (their reads' own estimate
-    /// above [`REFINE_ABOVE`]), each on a lattice of its own twice as fine per side as
-    /// before, while its estimate stays above it and up to `self.refine` times the block's
-    /// reads per side, and scales them. A pixel's reads are the same as a block's
-    /// ([`Step::read_lattice`]: each its own shadow rays, the shadows' edges placed between
-    /// them), only denser: the pixels a shadow's edge crosses, where an all-or-nothing read
-    /// converges as its spacing (`docs/performance.md`, "Pixels read again where their
-    /// reads disagree").
+    /// above [`REFINE_ABOVE`], or light and none among their reads and the ring around
+    /// them: [`mixed`]), each on a lattice of its own twice as fine per side as before
+    /// with a ring of reads one spacing beyond its sides, again while its light moves by more
+    /// than [`REFINE_ABOVE`] from one level to the next (or between the ratio and the
+    /// absolute form) and up to `self.refine` times the block's reads per side, and scales
+    /// them. The reads are a block's ([`Step::read_lattice`]: each its own shadow rays, the
+    /// shadows' edges placed between them, the ring's included), only denser: the pixels a
+    /// shadow's edge crosses, where an all-or-nothing read converges as its spacing. Picked
+    /// by the estimate alone, a pixel whose reads all fell in shadow beside a lit neighbour
+    /// stayed dark at every level (NRHO row 167, 129 deg: p99 0.166 at `relief_refine` 8,
+    /// against 5.1e-2 now); taken to `self.refine` whatever its light did, the apolune
+    /// frame and row 167 took 2.8 and 1.9 times as long for the same p99
+    /// (`docs/performance.md`, "Pixels read again where their reads disagree").
     fn refine(&self, band: &mut Band, shading: (&Relief, SelfShadowing), g: &BlockGeometry) {
         let w = band.width;
         let mut pending = std::mem::take(&mut band.refine);
         let mut f = 2;
         while f <= self.refine && !pending.is_empty() {
             let (ms, mt) = (g.reads.0 * f, g.reads.1 * f);
-            band.offsets.clear();
-            for b in 0..mt {
-                for a in 0..ms {
-                    let o = |k: usize, m: usize| ((k as f64 + 0.5) / m as f64 - 0.5) / g.n;
-                    band.offsets.push((o(a, ms), o(b, mt)));
-                }
-            }
+            // The pixel's reads and a ring of reads around them, one spacing out.
+            let (ls, lt) = (ms + 2, mt + 2);
             let last = 2 * f > self.refine;
             let mut k = 0;
             while k < pending.len() {
-                let (i, r) = pending[k];
-                self.read_lattice(
-                    band,
-                    shading,
-                    g.origin,
-                    ((i, r), (i + 1, r + 1)),
-                    (g.lon, g.lat),
-                    (ms, mt),
-                    g.n,
-                    g.mu0_per_px,
-                    g.mu0,
-                );
+                let (i, r, before, absolute) = pending[k];
+                let (si, ti) = ((i - g.origin.0) as f64 / g.n, (r - g.origin.1) as f64 / g.n);
+                band.clear_lattice();
+                for jy in 0..lt {
+                    let t = ti + ((jy as f64 - 0.5) / mt as f64 - 0.5) / g.n;
+                    for jx in 0..ls {
+                        let s = si + ((jx as f64 - 0.5) / ms as f64 - 0.5) / g.n;
+                        let at = (lerp(g.lon, s, t), lerp(g.lat, s, t));
+                        let read = self.relief_read(shading.0, shading.1, at);
+                        band.push_read(at, Some(read));
+                    }
+                }
+                band.place_edges(shading, (ls, lt));
                 band.reads.clear();
                 band.relief.clear();
                 band.lit.clear();
-                for (j, read) in band.lattice.iter().enumerate() {
-                    band.reads.push(band.lattice_at[j]);
-                    band.lit.push(band.lattice_lit[j]);
-                    if let Some(read) = read {
-                        band.relief.push(*read);
+                for jy in 1..=mt {
+                    for jx in 1..=ms {
+                        let q = jy * ls + jx;
+                        band.reads.push(band.lattice_at[q]);
+                        band.lit.push(band.lattice_lit[q]);
+                        if let Some(read) = &band.lattice[q] {
+                            band.relief.push(*read);
+                        }
                     }
                 }
                 let got = self.relief_pixel(band, g.read_rad / f as f64, Some((ms, mt)), ms * mt);
-                if last || got.estimate <= REFINE_ABOVE {
+                let factor = band.sums.first().copied().unwrap_or(0.0);
+                let again = got.absolute != absolute
+                    || (factor - before).abs() > REFINE_ABOVE * factor.abs();
+                if last || !again {
                     self.set_relief_pixel(band, &got, i, r);
                     band.estimate[r * w + i] = got.estimate;
                     pending.swap_remove(k);
                 } else {
+                    pending[k] = (i, r, factor, got.absolute);
                     k += 1;
                 }
             }
@@ -1111,16 +1155,42 @@ impl Step<'_> {
     }
 }
 
-/// A block's map coordinates and light at its corners, and its reads, for the pixels read
-/// again ([`Step::refine`]).
+/// Whether the reads of columns `c0..c1` and rows `r0..r1` of a lattice `lw` reads wide (a
+/// pixel's and the ring of reads around them) hold both light and none: a read's light is its lit
+/// share ([`lit_shares`]) where the DEM's facet faces the Sun and the camera, 0 where it does
+/// not (an attached shadow's edge, sharp at the bilinear DEM's texel edges, counts as a cast
+/// one's). A pixel whose own reads all lie in shadow next to a lit neighbour's has an
+/// estimate of 0 ([`relief_estimate`]) however much of it is lit.
+fn mixed(
+    lattice: &[Option<ReliefRead>],
+    lit: &[f64],
+    lw: usize,
+    (c0, c1): (usize, usize),
+    (r0, r1): (usize, usize),
+) -> bool {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for row in r0..r1 {
+        for col in c0..c1 {
+            let q = row * lw + col;
+            if let Some(r) = &lattice[q] {
+                let l = if r.k > 0.0 { lit[q] } else { 0.0 };
+                lo = lo.min(l);
+                hi = hi.max(l);
+            }
+        }
+    }
+    lo < 1.0 && hi > 0.0
+}
+
+/// A block's top-left pixel, side [px], map coordinates at its corners and reads per
+/// pixel, and what each read stands for [rad], for the pixels read again
+/// ([`Step::refine`]).
 struct BlockGeometry {
     origin: (usize, usize),
     lon: [f64; 4],
     lat: [f64; 4],
     reads: (usize, usize),
     n: f64,
-    mu0_per_px: f64,
-    mu0: [f64; 4],
     read_rad: f64,
 }
 

@@ -283,17 +283,7 @@ fn bad(file: &Path, what: impl std::fmt::Display) -> AppError {
     AppError::Sweep(format!("{}: {what}", file.display()))
 }
 
-/// Deep-merges `patch` into `base` (tables merge key by key; anything else is replaced).
-pub fn merge(base: &mut toml::Table, patch: &toml::Table) {
-    for (k, v) in patch {
-        match (base.get_mut(k), v) {
-            (Some(toml::Value::Table(b)), toml::Value::Table(p)) => merge(b, p),
-            _ => {
-                base.insert(k.clone(), v.clone());
-            }
-        }
-    }
-}
+pub use crate::config::merge_toml as merge;
 
 /// Reads the scene of `raw`, patched, with its pose (from a trajectory when named).
 fn load_scene(dir: &Path, raw: &RawScene, sweep_file: &Path) -> Result<SweepScene, AppError> {

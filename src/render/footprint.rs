@@ -142,9 +142,9 @@ const MAX_CAST: usize = 32;
 
 /// Under `MapFilter::Relief` with `relief_refine` above 1: a pixel whose reads' own error
 /// estimate ([`relief_estimate`]) exceeds this, or whose reads hold light and shadow
-/// ([`mixed`]), is read again on a lattice twice as fine per side, and again while it still
-/// does, up to `relief_refine` times the first reads per side ([`Step::refine`]). A third
-/// of the p99 budget's default (3e-2). On the NRHO's apolune frame, by the estimate alone,
+/// ([`mixed`]), is read again on a lattice twice as fine per side, and again while its light
+/// moves by more than this between levels, up to `relief_refine` times the first reads per
+/// side ([`Step::refine`]). A third of the p99 budget's default (3e-2). On the NRHO's apolune frame, by the estimate alone,
 /// 3e-3 re-read 2.9 times the pixels (14,328 of 28,603 against 4,945) for p99 6.7e-2
 /// against 6.8e-2 (re-read twice as finely, the limb cast 8 x 8).
 pub const REFINE_ABOVE: f64 = 1e-2;
@@ -218,8 +218,8 @@ struct Step<'a> {
     /// Under `MapFilter::Relief`: the relief whose shading and shadows every read carries
     /// (the quadrangles integrated the smooth shape), and how it hides the Sun and the camera.
     shading: Option<(&'a Relief, SelfShadowing)>,
-    /// Under `shading`: the most the reads are refined per side where their own estimate
-    /// is above [`REFINE_ABOVE`], and the factor of a cast pixel's lines of sight (1: off).
+    /// Under `shading`: the most a pixel's reads are refined per side where they disagree
+    /// ([`Step::refine`]), and the factor of a cast pixel's lines of sight (1: off).
     refine: usize,
     /// `A_sun A_cam` [m^4] of Eq. 12, with which a pixel near the smooth terminator is
     /// taken from its reads alone ([`Step::absolute_scale`]).
@@ -578,7 +578,7 @@ impl Step<'_> {
         if let Some(shading) = self.shading {
             let cast = (CAST * self.refine).min(MAX_CAST);
             let k = cast as f64;
-            // The reads on a `CAST x CAST` lattice over the pixel (`None` where the line of
+            // The reads on a `cast x cast` lattice over the pixel (`None` where the line of
             // sight misses the body), a shadow's edge placed between them as over a block
             // ([`lit_shares`]); the block's lattice is free (a lone pixel builds none).
             band.clear_lattice();

@@ -114,6 +114,7 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
     assert!(f["points_per_pixel"].as_f64().unwrap() > 0.0, "{json}");
     assert!(f["predicted"]["median"].as_f64().is_some(), "{json}");
     assert_eq!(f["map_filter"], "pixel", "{json}");
+    assert_eq!(f["relief_refine"], 1, "{json}");
     let fits = std::fs::read(out.join("power.fits")).unwrap();
     let header = String::from_utf8_lossy(&fits[..2880 * 2]);
     for key in [
@@ -124,9 +125,12 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
         "BUDMET  =",
         "SHADOWS = 'off",
         "MAPFILT = 'pixel",
+        "RREFINE =",
     ] {
         assert!(header.contains(key), "{key} missing");
     }
+    let refine = header.split("RREFINE = ").nth(1).unwrap_or_default();
+    assert_eq!(refine.get(..20).map(str::trim), Some("1"), "{refine}");
 }
 
 /// A figure that no rung is predicted to meet does not send the frame to the top rung: the
@@ -254,11 +258,11 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
         let values = (0..w * h).map(f).collect();
         Map::from_values(Path::new(name), w, h, values, &Encoding::default()).unwrap()
     };
-    let filter_at = |camera_radii: f64, displaces: bool| {
+    let filter_with = |camera_radii: f64, displaces: bool, render: &'static str| {
         let mut cfg = optistim::config::parse(
             &SceneSpec {
                 camera_m: [camera_radii * R_MOON, 0.0, 0.0],
-                ..spec("")
+                ..spec(render)
             }
             .toml(),
             "t",
@@ -273,6 +277,7 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
         let planner = Planner::new(&cfg.scene, &cfg.settings, Budget::default(), model);
         planner.plan(&cfg.scene, &cfg.pose)
     };
+    let filter_at = |camera_radii: f64, displaces: bool| filter_with(camera_radii, displaces, "");
     let (far, near, displaced) = (
         filter_at(8.0, false),
         filter_at(3.0, false),
@@ -285,6 +290,15 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
     assert!(!displaced.meets_budget);
     assert_ne!(far.outside_model, Some(UNFITTED_DEM));
     assert_ne!(near.outside_model, Some(UNFITTED_DEM));
+    // `render.relief_refine` is the file's: the plan reports it where the relief is read
+    // over each pixel (it changes nothing elsewhere), and the prediction stays the model's.
+    assert_eq!((far.relief_refine, near.relief_refine), (1, 1));
+    let refined = |camera_radii: f64| filter_with(camera_radii, false, "relief_refine = 8");
+    let (far_refined, near_refined) = (refined(8.0), refined(3.0));
+    assert_eq!(far_refined.relief_refine, 8);
+    assert_eq!(far_refined.settings.relief_refine, 8);
+    assert_eq!(far_refined.predicted, far.predicted);
+    assert_eq!(near_refined.relief_refine, 1);
 }
 
 /// The NRHO's perilune frame of `config/nrho_textured_budget.toml` (the LOLA DEM, the Sun 21

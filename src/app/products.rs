@@ -412,6 +412,11 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
             Value::Str(map_filter),
             "chosen: map (and relief) read per area or pixel",
         ),
+        Card::new(
+            "RREFINE",
+            Value::Int(p.relief_refine as i64),
+            "relief reads refined up to this per side",
+        ),
         f(
             "PREDMED",
             p.predicted.median,

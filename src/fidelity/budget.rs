@@ -313,6 +313,11 @@ pub struct Plan {
     /// How the albedo map is read ([`Planner::map_filter`]; a ray-cast frame reports the
     /// scene's own setting, its rays reading the map where they land).
     pub map_filter: MapFilter,
+    /// Under the relief filter, how much finer a pixel's reads may get where they disagree
+    /// (`render.relief_refine`): the base's, which the planner keeps and does not choose (its
+    /// model was fitted at 1, so the prediction is the model's at 1, above what a refined
+    /// frame measures); 1 elsewhere, where it changes nothing.
+    pub relief_refine: u32,
     pub predicted: Predicted,
     /// Whether the prediction meets the budget (false: no rung is predicted to meet it; the
     /// frame is rendered at the cheapest rung that meets the figures some rung can meet and
@@ -1204,6 +1209,7 @@ impl Planner {
             boundary_nodes: 0,
             self_shadowing: settings.self_shadowing,
             map_filter: settings.map_filter,
+            relief_refine: 1,
             predicted: Predicted {
                 median: f64::NAN,
                 p99: f64::NAN,
@@ -1373,6 +1379,11 @@ impl Planner {
             boundary_nodes: settings.boundary_nodes,
             self_shadowing: shadows,
             map_filter: settings.map_filter,
+            relief_refine: if settings.map_filter == MapFilter::Relief {
+                settings.relief_refine
+            } else {
+                1
+            },
             predicted,
             meets_budget: meets,
             outside_model: outside,
@@ -1602,6 +1613,7 @@ mod tests {
             boundary_nodes: 4,
             self_shadowing: SelfShadowing::RayMarching,
             map_filter,
+            relief_refine: 1,
             predicted: Predicted {
                 median: 5e-4,
                 p99: 1e-2,

@@ -102,23 +102,28 @@ pub fn spelled<T: serde::Serialize>(value: &T) -> String {
 
 /// Reads and validates a scene file.
 pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    let (file, text) = read(path)?;
+    parse(&text, &file)
+}
+
+/// A scene file's name (as errors give it) and text.
+fn read(path: &Path) -> Result<(String, String), ConfigError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
         file: file.clone(),
         source,
     })?;
-    parse(&text, &file)
+    Ok((file, text))
 }
 
 /// [`load`] with `render` (TOML, the keys of a `[render]` table) over the file's `[render]`:
 /// a setting changed for one run without a copy of the file (`optistim verify-budget
 /// --render`, whose references, keyed by the file's own text, are then reused).
 pub fn load_with_render(path: &Path, render: &str) -> Result<Config, ConfigError> {
-    let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-        file: file.clone(),
-        source,
-    })?;
+    let (file, text) = read(path)?;
+    if render.trim().is_empty() {
+        return parse(&text, &file);
+    }
     let table = |text: &str, file: &str| {
         toml::from_str::<toml::Table>(text).map_err(|e| ConfigError::Parse {
             file: file.to_string(),

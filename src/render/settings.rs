@@ -170,10 +170,10 @@ pub struct Settings {
     /// How quadrangles read the albedo map.
     pub map_filter: MapFilter,
     /// Under `MapFilter::Relief`: how much finer, per side, the reads of a pixel a shadow's
-    /// edge crosses may get (1: never; 2, 4, 8: read again twice as finely while their own
-    /// estimate is above [`super::footprint::REFINE_ABOVE`] or they hold light and shadow),
-    /// and the factor of the lines of sight a limb pixel casts (8 x 8 times it, at most
-    /// 32 x 32).
+    /// edge crosses may get (1: never; 2, 4, 8: a pixel whose reads disagree, by their own
+    /// estimate above [`super::footprint::REFINE_ABOVE`] or light and shadow among them, is
+    /// read again twice as finely while its light still moves), and the factor of the lines
+    /// of sight a limb pixel casts (8 x 8 times it, at most 32 x 32).
     pub relief_refine: u32,
     /// Mesh bodies ([`crate::raycast::sampled`]): rays per pixel side everywhere.
     pub raycast_samples: u32,

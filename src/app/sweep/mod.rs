@@ -283,15 +283,13 @@ fn bad(file: &Path, what: impl std::fmt::Display) -> AppError {
     AppError::Sweep(format!("{}: {what}", file.display()))
 }
 
-pub use crate::config::merge_toml as merge;
-
 /// Reads the scene of `raw`, patched, with its pose (from a trajectory when named).
 fn load_scene(dir: &Path, raw: &RawScene, sweep_file: &Path) -> Result<SweepScene, AppError> {
     let path = dir.join(&raw.file);
     let text = std::fs::read_to_string(&path).map_err(|e| bad(&path, e))?;
     let mut table: toml::Table = toml::from_str(&text).map_err(|e| bad(&path, e))?;
     if let Some(p) = &raw.patch {
-        merge(&mut table, p);
+        crate::config::merge_toml(&mut table, p);
     }
     let text = toml::to_string(&table).map_err(|e| bad(sweep_file, e))?;
     let label = path.display().to_string();
@@ -341,7 +339,7 @@ fn with_setting(scene: &SweepScene, render: &toml::Table) -> Result<Config, AppE
     let mut table: toml::Table = toml::from_str(&scene.text)
         .map_err(|e| AppError::Sweep(format!("scene {:?}: {e}", scene.name)))?;
     let mut base = scene.base_render.clone();
-    merge(&mut base, render);
+    crate::config::merge_toml(&mut base, render);
     table.insert("render".into(), toml::Value::Table(base));
     let text = toml::to_string(&table).map_err(|e| AppError::Sweep(e.to_string()))?;
     let mut cfg = crate::config::parse(&text, &scene.label)?;

@@ -733,19 +733,6 @@ fn a_displaced_ground_shows_the_camera_its_own_area() {
     assert!(e.p99 < 0.15, "{e:?}");
 }
 
-/// Issue 15: the relief's shading read over each pixel's footprint (`map_filter =
-/// "relief"`) where a pixel spans a hill. The quadrangles integrate the relief's light over
-/// each quadrangle and spread it over the pixels it covers, so where the shading changes
-/// within a pixel more quadrangles lower the median only slowly (the LOLA Moon at the NRHO's
-/// apolune, 256 x 256: 1.4e-2, 7.6e-3 and 2.4e-3 at 4, 16 and 64 per pixel). Under
-/// `relief` the quadrangles integrate the smooth sphere and each pixel is scaled by its
-/// reads' light with the DEM's normals and shadows over the smooth sphere's. Hills 0.9 deg
-/// apart (a pixel is about one hill, 3.8 DEM texels) on the Hapke Moon with a textured map,
-/// at 60 deg of phase, with their shadows, against the reference (its own estimate: median
-/// 4.3e-4, total 3.4e-3): `pixel` at 4 per pixel measures median 5.9e-3, total 1.1e-3;
-/// `relief` at 1 per pixel 1.0e-3 and 2.0e-4. Before the reads were spaced on the DEM's
-/// texels as well as the map's (here 17 times coarser), `relief` read the hills once a pixel
-/// and measured median 1.7e-2.
 /// The Hapke Moon with a textured map and hills 0.9 deg apart (800 m high, slopes up to
 /// 0.19; a pixel is about one hill, 3.8 DEM texels) casting their shadows, 64 x 64, the Sun at
 /// `phase_deg`, under `render` and `filter`. The map and the hills come in after the file is
@@ -800,6 +787,19 @@ fn fine_hills_measured(
     }
 }
 
+/// Issue 15: the relief's shading read over each pixel's footprint (`map_filter =
+/// "relief"`) where a pixel spans a hill. The quadrangles integrate the relief's light over
+/// each quadrangle and spread it over the pixels it covers, so where the shading changes
+/// within a pixel more quadrangles lower the median only slowly (the LOLA Moon at the NRHO's
+/// apolune, 256 x 256: 1.4e-2, 7.6e-3 and 2.4e-3 at 4, 16 and 64 per pixel). Under
+/// `relief` the quadrangles integrate the smooth sphere and each pixel is scaled by its
+/// reads' light with the DEM's normals and shadows over the smooth sphere's. Hills 0.9 deg
+/// apart (a pixel is about one hill, 3.8 DEM texels) on the Hapke Moon with a textured map,
+/// at 60 deg of phase, with their shadows, against the reference (its own estimate: median
+/// 4.3e-4, total 3.4e-3): `pixel` at 4 per pixel measures median 5.9e-3, total 1.1e-3;
+/// `relief` at 1 per pixel 1.0e-3 and 2.0e-4. Before the reads were spaced on the DEM's
+/// texels as well as the map's (here 17 times coarser), `relief` read the hills once a pixel
+/// and measured median 1.7e-2.
 #[test]
 fn the_relief_over_each_pixel_footprint_matches_the_reference() {
     use optistim::render::MapFilter;

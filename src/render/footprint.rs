@@ -749,6 +749,24 @@ impl Band<'_> {
         self.lattice.push(read);
     }
 
+    /// A pixel's reads from the lattice (`lw` reads wide), `(ns, nt)` of them from column
+    /// `ca` and row `rb`, into `reads`, `lit` and `relief` ([`Step::relief_pixel`]'s input).
+    fn take_reads(&mut self, lw: usize, (ca, rb): (usize, usize), (ns, nt): (usize, usize)) {
+        self.reads.clear();
+        self.relief.clear();
+        self.lit.clear();
+        for b in 0..nt {
+            for a in 0..ns {
+                let q = (rb + b) * lw + ca + a;
+                self.reads.push(self.lattice_at[q]);
+                self.lit.push(self.lattice_lit[q]);
+                if let Some(read) = &self.lattice[q] {
+                    self.relief.push(*read);
+                }
+            }
+        }
+    }
+
     /// The lattice's (`(columns, rows)`) lit shares across the shadows' edges between its
     /// reads ([`lit_shares`]), under ray marching.
     fn place_edges(&mut self, (relief, shadows): (&Relief, SelfShadowing), grid: (usize, usize)) {
@@ -994,19 +1012,7 @@ impl Step<'_> {
                     let (lw, lh) = ((x1 - x0) * ns + 2 * ring, (y1 - y0) * nt + 2 * ring);
                     // The pixel's first read on the lattice, along each axis.
                     let (ca, rb) = ((i - x0) * ns + ring, (r - y0) * nt + ring);
-                    band.reads.clear();
-                    band.relief.clear();
-                    band.lit.clear();
-                    for b in 0..nt {
-                        for a in 0..ns {
-                            let q = (rb + b) * lw + ca + a;
-                            band.reads.push(band.lattice_at[q]);
-                            band.lit.push(band.lattice_lit[q]);
-                            if let Some(read) = &band.lattice[q] {
-                                band.relief.push(*read);
-                            }
-                        }
-                    }
+                    band.take_reads(lw, (ca, rb), (ns, nt));
                     let got = self.relief_pixel(band, read_rad, Some((ns, nt)), ns * nt);
                     if self.refine > 1
                         && (got.estimate > REFINE_ABOVE
@@ -1121,19 +1127,7 @@ impl Step<'_> {
                     }
                 }
                 band.place_edges(shading, (ls, lt));
-                band.reads.clear();
-                band.relief.clear();
-                band.lit.clear();
-                for jy in 1..=mt {
-                    for jx in 1..=ms {
-                        let q = jy * ls + jx;
-                        band.reads.push(band.lattice_at[q]);
-                        band.lit.push(band.lattice_lit[q]);
-                        if let Some(read) = &band.lattice[q] {
-                            band.relief.push(*read);
-                        }
-                    }
-                }
+                band.take_reads(ls, (1, 1), (ms, mt));
                 let got = self.relief_pixel(band, g.read_rad / f as f64, Some((ms, mt)), ms * mt);
                 let factor = band.sums.first().copied().unwrap_or(0.0);
                 let again = got.absolute != absolute

@@ -327,7 +327,8 @@ impl Step<'_> {
 
     /// The read over map coordinates `(lon, lat)` [rad] under `MapFilter::Relief`
     /// ([`ReliefRead`]): the shape's point there, the DEM's normal, and the relief's shadows
-    /// by the frame's method, as the quadrangles would have cast them.
+    /// by the frame's method, as the quadrangles would have cast them; under ray marching,
+    /// the answers in `known` (taken from coarser reads, [`Step::refine`]) are not marched.
     fn relief_read(
         &self,
         relief: &Relief,
@@ -1086,7 +1087,6 @@ impl Step<'_> {
         {
             let geometry = BlockGeometry {
                 origin: (x0, y0),
-                lattice_width: (x1 - x0) * ns + 2 * self.ring(),
                 lon,
                 lat,
                 reads: (ns, nt),
@@ -1126,21 +1126,9 @@ impl Step<'_> {
     fn refine(&self, band: &mut Band, shading: (&Relief, SelfShadowing), g: &BlockGeometry) {
         let w = band.width;
         let pending = std::mem::take(&mut band.refine);
-        // The block's lattice: each pixel's reads and their ring are its first coarse level.
-        let block_lattice = std::mem::take(&mut band.lattice);
-        let block_lit = std::mem::take(&mut band.lattice_lit);
         let (ns, nt) = g.reads;
         for &(i, r, mut before, mut absolute) in &pending {
             let (si, ti) = ((i - g.origin.0) as f64 / g.n, (r - g.origin.1) as f64 / g.n);
-            // The ring's first read on the block's lattice (one before the pixel's).
-            let (ca, rb) = ((i - g.origin.0) * ns, (r - g.origin.1) * nt);
-            band.coarse.clear();
-            for jy in 0..nt + 2 {
-                let row = (rb + jy) * g.lattice_width + ca;
-                let (reads, lit) = (&block_lattice[row..], &block_lit[row..]);
-                let shadowed = reads.iter().zip(lit).take(ns + 2).map(Shadowed::of);
-                band.coarse.extend(shadowed);
-            }
             let mut f = 2;
             while f <= self.refine {
                 let (ms, mt) = (ns * f, nt * f);
@@ -1154,7 +1142,8 @@ impl Step<'_> {
                         let s = si + ((jx as f64 - 0.5) / ms as f64 - 0.5) / g.n;
                         let at = (lerp(g.lon, s, t), lerp(g.lat, s, t));
                         // The first level marches every read (a shadow thinner than the
-                        // block's spacing is found there), the finer ones inherit.
+                        // block's spacing is found there), the finer ones inherit from the
+                        // level before.
                         let known = (f > 2)
                             .then(|| inherited(&band.coarse, ms / 2 + 2, (jx, jy)))
                             .flatten();
@@ -1180,9 +1169,6 @@ impl Step<'_> {
                 f *= 2;
             }
         }
-        band.lattice = block_lattice;
-        band.lattice_lit = block_lit;
-        band.lattice_lit.clear();
         band.lattice.clear();
         band.refine = pending;
         band.refine.clear();
@@ -1268,8 +1254,6 @@ fn mixed(
 /// ([`Step::refine`]).
 struct BlockGeometry {
     origin: (usize, usize),
-    /// The block's lattice's reads per row, its ring's included.
-    lattice_width: usize,
     lon: [f64; 4],
     lat: [f64; 4],
     reads: (usize, usize),

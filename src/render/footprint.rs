@@ -95,9 +95,11 @@
 //! them hold both light and shadow, is read again on a lattice of its own twice as fine per
 //! side, and again while its light still moves, up to `relief_refine` times per side
 //! ([`Step::refine`]); the blocks' lattices then reach one read beyond each side, and a limb
-//! pixel casts `relief_refine` times the lines of sight per side. The NRHO's far frames'
-//! p99 from 0.10-0.17 to 2.2e-2-2.9e-2 at 8, for 7.5 to 9.7 times the time
-//! (`docs/performance.md`, "Pixels read again where their reads disagree").
+//! pixel casts `relief_refine` times the lines of sight per side. From the second level on a
+//! read takes its shadows from the four reads around it on the level before where they
+//! agree. The NRHO's far frames' p99 from 0.10-0.17 to 2.2e-2-2.9e-2 at 8, for 6.1 to 8.6
+//! times the time (`docs/performance.md`, "Pixels read again where their reads disagree"
+//! and "Finer reads take their shadows from the coarser level").
 //!
 //! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
 //! of their own, `[[body.band_map]]`) share the lines of sight, the blocks and the reads'
@@ -801,6 +803,18 @@ impl Step<'_> {
         usize::from(self.refine > 1)
     }
 
+    /// The reads per row and per column of the lattice of the block of pixels `(x0, y0)` to
+    /// `(x1, y1)` (exclusive) at `(ns, nt)` reads a pixel, [`Step::ring`] included.
+    fn lattice_size(
+        &self,
+        (x0, y0): (usize, usize),
+        (x1, y1): (usize, usize),
+        (ns, nt): (usize, usize),
+    ) -> (usize, usize) {
+        let ring = self.ring();
+        ((x1 - x0) * ns + 2 * ring, (y1 - y0) * nt + 2 * ring)
+    }
+
     /// The reads of the block of pixels `(x0, y0)` to `(x1, y1)` (band rows, exclusive; map
     /// coordinates bilinear in `lon`, `lat` over `n` px) under `MapFilter::Relief`: `(ns, nt)`
     /// per pixel at `band.offsets`, the midpoints of one lattice over the block, into `band.lattice` (`None`
@@ -822,7 +836,7 @@ impl Step<'_> {
         mu0: [f64; 4],
     ) {
         let ring = self.ring();
-        let (lw, lh) = ((x1 - x0) * ns + 2 * ring, (y1 - y0) * nt + 2 * ring);
+        let (lw, lh) = self.lattice_size((x0, y0), (x1, y1), (ns, nt));
         let w = band.width;
         band.clear_lattice();
         // Read `j` along an axis of `m` reads a pixel: the pixel (from the block's first, -1
@@ -1016,9 +1030,9 @@ impl Step<'_> {
                             mu0,
                         );
                     }
-                    let ring = self.ring();
-                    let (lw, lh) = ((x1 - x0) * ns + 2 * ring, (y1 - y0) * nt + 2 * ring);
+                    let (lw, lh) = self.lattice_size((x0, y0), (x1, y1), (ns, nt));
                     // The pixel's first read on the lattice, along each axis.
+                    let ring = self.ring();
                     let (ca, rb) = ((i - x0) * ns + ring, (r - y0) * nt + ring);
                     band.take_reads(lw, (ca, rb), (ns, nt));
                     let got = self.relief_pixel(band, read_rad, Some((ns, nt)), ns * nt);
@@ -1169,7 +1183,7 @@ impl Step<'_> {
                 f *= 2;
             }
         }
-        band.lattice.clear();
+        band.clear_lattice();
         band.refine = pending;
         band.refine.clear();
     }

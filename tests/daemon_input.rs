@@ -660,11 +660,17 @@ fn a_budgeted_daemon_reports_each_frames_plan_in_the_ack_and_status() {
         Some(f.predicted_median)
     );
     assert_eq!(plan["meets_budget"].as_bool(), Some(f.meets_budget));
-    // The ack's last byte names how the map was read, as the plan does.
-    let filters = ["point", "area", "pixel"];
+    // The ack's last bytes name how the map was read and how finely the relief's reads
+    // could get, as the plan does.
+    let filters = ["point", "area", "pixel", "relief"];
     assert_eq!(
         plan["map_filter"].as_str(),
         filters.get(f.map_filter as usize).copied(),
+        "{f:?}"
+    );
+    assert_eq!(
+        plan["relief_refine"].as_u64(),
+        Some(u64::from(f.relief_refine)),
         "{f:?}"
     );
     assert_eq!(s["last_frame"]["plan"], *plan, "the dashboard's report");

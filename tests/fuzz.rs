@@ -74,7 +74,8 @@ fn random_message(rng: &mut Pcg64) -> Message {
                 predicted_p99: f(rng),
                 predicted_total: f(rng),
                 meets_budget: rng.random(),
-                map_filter: rng.random_range(0..3),
+                map_filter: rng.random_range(0..4),
+                relief_refine: rng.random(),
             }),
             ..AckMsg::dropped(0, 0)
         }),

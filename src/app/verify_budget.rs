@@ -43,6 +43,9 @@ pub struct FrameCheck {
     pub raycast_clip: bool,
     pub self_shadowing: String,
     pub map_filter: String,
+    /// Under the relief filter, how much finer the pixels' reads could get
+    /// (`render.relief_refine`; 1 elsewhere).
+    pub relief_refine: u32,
     pub predicted_median: f64,
     pub predicted_p99: f64,
     pub predicted_total: f64,
@@ -238,6 +241,7 @@ pub fn run(
             raycast_clip: plan.raycast_clip,
             self_shadowing: format!("{:?}", plan.self_shadowing),
             map_filter: format!("{:?}", plan.map_filter),
+            relief_refine: plan.relief_refine,
             predicted_median: plan.predicted.median,
             predicted_p99: plan.predicted.p99,
             predicted_total: plan.predicted.total,
@@ -268,8 +272,15 @@ pub fn run(
                 )
             } else {
                 format!(
-                    "ppp {} {:?} map {:?}",
-                    c.points_per_pixel, plan.self_shadowing, plan.map_filter
+                    "ppp {} {:?} map {:?}{}",
+                    c.points_per_pixel,
+                    plan.self_shadowing,
+                    plan.map_filter,
+                    if plan.relief_refine > 1 {
+                        format!(" refine {}", plan.relief_refine)
+                    } else {
+                        String::new()
+                    }
                 )
             },
             e.median,

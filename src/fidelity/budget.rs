@@ -12,7 +12,8 @@
 //! edge:        x = (1, ln p, ln(max(E - 0.01, 0) + 1e-4), ln(sin(g / 2) + 0.05))
 //! inside:      x = (1, ln p, ln(T + 1e-4), ln p ln(T + 1e-4))
 //! reflectance: x = (1, ln p, ln(H + 1e-6))
-//! relief:      x = (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) + 0.05), P, P ln p)
+//! relief:      x = (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) + 0.05), P, P ln p,
+//!                   P ln k)
 //!              (frames with a DEM alone)
 //! ```
 //!
@@ -31,18 +32,22 @@
 //!
 //! A frame with a DEM adds the relief term (`S` the share of the lit surface where the Sun or
 //! the camera is lower than the DEM's steep slopes, `R` the DEM's shading between pixels where
-//! the quadrangles carry it, 0 where each pixel reads it, and `P` 1 where each pixel reads it,
-//! [`Features::modelled`]). It is fitted on the sweep's frames with a DEM alone
+//! the quadrangles carry it, 0 where each pixel reads it, `P` 1 where each pixel reads it,
+//! [`Features::modelled`], and `k` how much more finely a pixel's reads may get where they
+//! disagree, [`Features::refined`]). It is fitted on the sweep's frames with a DEM alone
 //! (`sweeps/budget_dem.toml`: the planner's own rungs, `rung = p`) over the three terms held
 //! fixed, and those frames get their own margin ([`FigureModel::relief_margin`]): the model
 //! of every frame without a DEM is what it was without them.
 //!
 //! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
-//! prediction meets the budget. It models no more than the frame needs: shadows are cast
-//! only when the Sun is low enough over enough of the lit surface for the relief to hide it
-//! ([`Planner::shadowing`]), and the albedo map is read over each pixel's footprint at the
-//! level of detail it spans ([`crate::render::MapFilter::Pixel`]).
+//! prediction meets the budget. Where each pixel reads the relief, it climbs the ladder again
+//! at each refinement of those reads (`relief_refine` 1, 2, 4, 8: `k` in the relief term,
+//! [`Features::relief_refine`]), the refinement costing more than the quadrangles. It models
+//! no more than the frame needs: shadows are cast only when the Sun is low enough over enough
+//! of the lit surface for the relief to hide it ([`Planner::shadowing`]), and the albedo map
+//! is read over each pixel's footprint at the level of detail it spans
+//! ([`crate::render::MapFilter::Pixel`]).
 //!
 //! A frame outside what the model was fitted on ([`Planner::outside_model`]: the camera
 //! within 0.05 radii of the body, a body more elongated than 2 : 1, a DEM taller than 0.02
@@ -118,6 +123,11 @@ pub struct Features {
     /// quadrangles per pixel), not the quadrangles'.
     #[serde(default)]
     pub relief_per_pixel: f64,
+    /// Where each pixel reads the relief, how many times finer its reads may get where they
+    /// disagree (`render.relief_refine`: 1, 2, 4 or 8, set by [`Features::refined`]); 1
+    /// elsewhere (0 in older files reads as 1).
+    #[serde(default)]
+    pub relief_refine: f64,
 }
 
 impl Features {
@@ -135,6 +145,20 @@ impl Features {
                 ..*self
             },
             _ => *self,
+        }
+    }
+
+    /// The features the error model reads for a frame whose pixels, where each reads the
+    /// relief ([`Features::relief_per_pixel`]), may be read again up to `relief_refine` times
+    /// as finely; elsewhere the setting changes nothing and is read as 1.
+    pub fn refined(&self, relief_refine: u32) -> Features {
+        Features {
+            relief_refine: if self.relief_per_pixel > 0.0 {
+                f64::from(relief_refine.max(1))
+            } else {
+                1.0
+            },
+            ..*self
         }
     }
 
@@ -162,12 +186,13 @@ pub enum Regressors {
     /// `(1, ln p, ln(H + 1e-6))`, `H` [`Features::nonlinear_albedo`]: the floor a reflectance
     /// that is not linear in the albedo leaves (nothing on a Lambertian body).
     Reflectance,
-    /// `(1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) + 0.05), P, P ln p)`, `S`
-    /// [`Features::shadow_share`], `R` [`Features::relief_texture`] as modelled (0 where the
-    /// relief is read over each pixel), `g` the phase and `P`
-    /// [`Features::relief_per_pixel`]: what a DEM adds, its shadows' edges (more of them
-    /// towards the terminator) and its shading where the quadrangles carry it, or the
-    /// pixels' reads' error where they carry it. It is summed only on frames with a DEM
+    /// `(1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) + 0.05), P, P ln p, P ln k)`,
+    /// `S` [`Features::shadow_share`], `R` [`Features::relief_texture`] as modelled (0 where
+    /// the relief is read over each pixel), `g` the phase, `P`
+    /// [`Features::relief_per_pixel`] and `k` [`Features::relief_refine`]: what a DEM adds,
+    /// its shadows' edges (more of them towards the terminator) and its shading where the
+    /// quadrangles carry it, or the pixels' reads' error where they carry it, which falls as
+    /// the pixels a shadow's edge crosses are read again more finely. It is summed only on frames with a DEM
     /// ([`Features::relief`]), fitted on them alone after the other terms, and bounded by its
     /// own margin ([`FigureModel::relief_margin`]).
     Relief,
@@ -193,6 +218,7 @@ impl Regressors {
                 ((0.5 * f.phase_deg.to_radians()).sin() + 0.05).ln(),
                 f.relief_per_pixel,
                 f.relief_per_pixel * p,
+                f.relief_per_pixel * f.relief_refine.max(1.0).ln(),
             ],
         }
     }
@@ -213,7 +239,7 @@ impl Regressors {
         ),
         (
             Regressors::Relief,
-            "relief: (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(phase / 2) + 0.05), P, P ln p), with a DEM alone",
+            "relief: (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(phase / 2) + 0.05), P, P ln p, P ln k), with a DEM alone",
         ),
     ];
 
@@ -314,9 +340,8 @@ pub struct Plan {
     /// scene's own setting, its rays reading the map where they land).
     pub map_filter: MapFilter,
     /// Under the relief filter, how much finer a pixel's reads may get where they disagree
-    /// (`render.relief_refine`): the base's, which the planner keeps and does not choose (its
-    /// model was fitted at 1, so the prediction is the model's at 1, above what a refined
-    /// frame measures); 1 elsewhere, where it changes nothing.
+    /// (`render.relief_refine`): chosen with the rung, at least the base's; 1 elsewhere,
+    /// where it changes nothing.
     pub relief_refine: u32,
     pub predicted: Predicted,
     /// Whether the prediction meets the budget (false: no rung is predicted to meet it; the
@@ -777,6 +802,11 @@ fn solve(a: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
 /// figure is within this factor of the ladder's best is good enough for it.
 const NEAR_BEST: f64 = 1.5;
 
+/// The refinements of a pixel's relief reads the planner may take (`render.relief_refine`):
+/// at the NRHO's far frames 1 left the 99th percentile at 0.10 to 0.17 and 8 brought it to
+/// 2.2e-2 to 2.9e-2 (`docs/performance.md`, "Pixels read again where their reads disagree").
+const RELIEF_REFINES: [u32; 4] = [1, 2, 4, 8];
+
 /// A ray-cast frame's first rays per pixel side at its edges under a budget: with 4, pixels
 /// whose 4 x 4 rays all met one class hid errors the estimate could not see (on Bennu at
 /// phase 100, the total 1.3e-4 measured against 6.5e-5 estimated); with 8, every frame
@@ -966,6 +996,7 @@ impl FrameProbe {
                 0.0
             },
             relief_per_pixel: 0.0,
+            relief_refine: 1.0,
         }
     }
 }
@@ -1320,9 +1351,32 @@ impl Planner {
         let modelled = features.modelled(map_filter);
         let b = self.budget;
         let fits = |p: &Predicted| p.median <= b.median && p.p99 <= b.p99 && p.total <= b.total;
-        let predicted: Vec<(f64, Predicted)> = LADDER
+        // Where each pixel reads the relief, the ladder's rungs again with its pixels read
+        // more finely where their reads disagree (`relief_refine`, at least the base's):
+        // cheapest first, the reads' refinement costing more than the quadrangles (at the
+        // NRHO's apolune 0.8 s at 1 per pixel, 4.4 s read again 4 times as finely).
+        let refines: Vec<u32> = if map_filter == MapFilter::Relief {
+            RELIEF_REFINES
+                .iter()
+                .copied()
+                .filter(|&k| k >= self.base.relief_refine)
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let refines = if refines.is_empty() {
+            vec![self.base.relief_refine]
+        } else {
+            refines
+        };
+        let predicted: Vec<(f64, u32, Predicted)> = refines
             .iter()
-            .map(|&ppp| (ppp, self.model.predict(ppp, &modelled)))
+            .flat_map(|&k| {
+                let f = modelled.refined(k);
+                LADDER
+                    .iter()
+                    .map(move |&ppp| (ppp, k, self.model.predict(ppp, &f)))
+            })
             .collect();
         // A figure no rung is predicted to meet (a textured frame's median, which more
         // quadrangles do not lower) does not hold back the others: a rung is then taken when
@@ -1331,7 +1385,7 @@ impl Planner {
         let best = |get: fn(&Predicted) -> f64| {
             predicted
                 .iter()
-                .map(|(_, q)| get(q))
+                .map(|(_, _, q)| get(q))
                 .fold(f64::INFINITY, f64::min)
         };
         let (best_median, best_p99, best_total) =
@@ -1344,20 +1398,21 @@ impl Planner {
                 && near(q.p99, b.p99, best_p99)
                 && near(q.total, b.total, best_total)
         };
+        let top = predicted[predicted.len() - 1];
         // A frame with nothing lit has no error to budget: the cheapest rung.
-        let (ppp, predicted, meets) = if features.lit_px == 0.0 {
-            (predicted[0].0, predicted[0].1, true)
+        let ((ppp, refine, predicted), meets) = if features.lit_px == 0.0 {
+            (predicted[0], true)
         } else if outside.is_some() {
-            let (ppp, q) = predicted[predicted.len() - 1];
-            (ppp, q, false)
-        } else if let Some(&(ppp, q)) = predicted.iter().find(|(_, q)| fits(q)) {
-            (ppp, q, true)
+            (top, false)
+        } else if let Some(&chosen) = predicted.iter().find(|(_, _, q)| fits(q)) {
+            (chosen, true)
         } else {
-            let &(ppp, q) = predicted
+            let chosen = predicted
                 .iter()
-                .find(|(_, q)| good_enough(q))
-                .unwrap_or(&predicted[predicted.len() - 1]);
-            (ppp, q, false)
+                .find(|(_, _, q)| good_enough(q))
+                .copied()
+                .unwrap_or(top);
+            (chosen, false)
         };
         // A DEM the model has not seen: its prediction is not claimed (a flat DEM's changes
         // nothing).
@@ -1370,6 +1425,7 @@ impl Planner {
         let outside = outside.or(unfitted);
         let settings = Settings {
             self_shadowing: shadows,
+            relief_refine: refine,
             ..self.planned(&self.base, &features, ppp)
         };
         Plan {
@@ -1525,11 +1581,17 @@ mod tests {
         let without = ErrorModel::fit(&rows).unwrap();
         assert!(!without.fitted_on_relief());
         // The relief's own law: k . (1, ln p, ln(S + 1e-3), ln(R + 1e-3), ln(sin(g / 2) +
-        // 0.05), P, P ln p).
-        let k = [-3.0, -0.6, 0.8, 0.4, 0.5, 1.0, 0.3];
+        // 0.05), P, P ln p, P ln refine).
+        let k = [-3.0, -0.6, 0.8, 0.4, 0.5, 1.0, 0.3, -0.7];
         let mut with = rows.clone();
         for &s in &[0.01, 0.1, 0.3] {
-            for (rt, per_px) in [(0.0, 1.0), (0.02, 0.0), (0.2, 0.0)] {
+            for (rt, per_px, refine) in [
+                (0.0, 1.0, 1),
+                (0.0, 1.0, 2),
+                (0.0, 1.0, 8),
+                (0.02, 0.0, 1),
+                (0.2, 0.0, 1),
+            ] {
                 for &g in &[30.0, 90.0, 130.0] {
                     for &p in &LADDER {
                         let mut r = plain(p, 0.05, 50.0);
@@ -1538,6 +1600,7 @@ mod tests {
                         r.features.relief_texture = rt;
                         r.features.relief_per_pixel = per_px;
                         r.features.phase_deg = g;
+                        r.features = r.features.refined(refine);
                         let base = without.median.modelled(p, &r.features);
                         let x = Regressors::Relief.values(p, &r.features);
                         r.median = base + dot(&k, &x).exp();
@@ -1565,6 +1628,7 @@ mod tests {
         }
         let relief = &m.median.term[3];
         assert_eq!(relief.x, Regressors::Relief);
+        assert_eq!(relief.k.len(), k.len());
         for (a, b) in relief.k.iter().zip(k) {
             assert!((a - b).abs() < 1e-4, "{:?} against {k:?}", relief.k);
         }

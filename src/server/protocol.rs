@@ -178,7 +178,7 @@ pub struct AckMsg {
 }
 
 /// Bytes of the binary ack's fidelity tail.
-const FIDELITY_TAIL: usize = 36;
+const FIDELITY_TAIL: usize = 37;
 
 /// The fidelity planner's choice for one frame ([`crate::fidelity::budget::Plan`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -196,6 +196,14 @@ pub struct AckFidelity {
     /// and shadows (`MapFilter::Relief`).
     #[serde(default)]
     pub map_filter: u8,
+    /// Under the relief filter, how many times finer a pixel's reads could get where they
+    /// disagree (`render.relief_refine`: 1, 2, 4 or 8; 1 elsewhere).
+    #[serde(default = "one")]
+    pub relief_refine: u8,
+}
+
+fn one() -> u8 {
+    1
 }
 
 impl AckFidelity {
@@ -219,6 +227,7 @@ impl AckFidelity {
                 crate::render::MapFilter::Pixel => 2,
                 crate::render::MapFilter::Relief => 3,
             },
+            relief_refine: p.relief_refine.min(255) as u8,
         }
     }
 }
@@ -402,6 +411,7 @@ impl Message {
                     w.f64(f.predicted_total);
                     w.u8(u8::from(f.meets_budget));
                     w.u8(f.map_filter);
+                    w.u8(f.relief_refine);
                 }
                 if let Some(n) = a.recording_failed {
                     w.u64(n);
@@ -532,7 +542,7 @@ impl Message {
                     clipped_below_dark: r.u64()?,
                     clipped_above_max: r.u64()?,
                     calibration_id: r.str()?,
-                    // Optional tails, told apart by their lengths: fidelity (36 bytes),
+                    // Optional tails, told apart by their lengths: fidelity (37 bytes),
                     // then the recording's failures (8).
                     fidelity: if payload.len() - r.i >= FIDELITY_TAIL {
                         Some(AckFidelity {
@@ -544,6 +554,7 @@ impl Message {
                             predicted_total: r.f64()?,
                             meets_budget: r.u8()? != 0,
                             map_filter: r.u8()?,
+                            relief_refine: r.u8()?,
                         })
                     } else {
                         None
@@ -909,6 +920,7 @@ mod tests {
                     predicted_total: 3e-6,
                     meets_budget: true,
                     map_filter: 2,
+                    relief_refine: 1,
                 }),
                 recording_failed: None,
             }),

@@ -160,6 +160,10 @@ pub struct Row {
     /// for other settings and in older CSVs.
     #[serde(default = "nan")]
     pub est_relief_p99: f64,
+    /// The setting's `render.relief_refine` (absent in the CSVs written before the column
+    /// existed: [`Row::relief_refine`] reads it from `render`).
+    #[serde(default)]
+    pub relief_refine: Option<u32>,
 }
 
 fn nan() -> f64 {
@@ -186,12 +190,29 @@ impl Row {
             relief_texture: self.f_relief_texture,
             relief: self.f_relief,
             relief_per_pixel: 0.0,
+            relief_refine: 1.0,
         }
     }
 
-    /// The features the error model reads for this row's setting ([`Features::modelled`]).
+    /// The features the error model reads for this row's setting ([`Features::modelled`],
+    /// [`Features::refined`]).
     pub fn modelled_features(&self) -> Features {
-        self.features().modelled(self.map_filter)
+        self.features()
+            .modelled(self.map_filter)
+            .refined(self.relief_refine())
+    }
+
+    /// The setting's `render.relief_refine`: the column, or in the CSVs written before it
+    /// existed, the `render` keys' (1 where they do not set it).
+    pub fn relief_refine(&self) -> u32 {
+        self.relief_refine.unwrap_or_else(|| {
+            self.render
+                .split(';')
+                .filter_map(|kv| kv.split_once('='))
+                .find(|(k, _)| k.trim() == "relief_refine")
+                .and_then(|(_, v)| v.trim().parse().ok())
+                .unwrap_or(1)
+        })
     }
 }
 
@@ -598,6 +619,7 @@ pub fn run(
             let map_filter = configs[k]
                 .as_ref()
                 .map_or(MapFilter::Pixel, |c| c.settings.map_filter);
+            let relief_refine = configs[k].as_ref().ok().map(|c| c.settings.relief_refine);
             let row = Row {
                 points_per_px,
                 ladder,
@@ -613,6 +635,7 @@ pub fn run(
                 f_relief_texture: features.relief_texture,
                 f_relief: features.relief,
                 est_relief_p99,
+                relief_refine,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,

@@ -302,6 +302,19 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
     assert_eq!(near_refined.relief_refine, 1);
 }
 
+/// `plan`'s prediction bounds every figure its frame measured at the same settings in a
+/// sweep (`row`).
+fn predicted_bounds(plan: &optistim::fidelity::budget::Plan, row: &optistim::app::sweep::Row) {
+    let p = plan.predicted;
+    assert!(
+        row.err_median <= p.median && row.err_p99 <= p.p99 && row.err_total <= p.total,
+        "{p:?} against the row's {} / {} / {}",
+        row.err_median,
+        row.err_p99,
+        row.err_total
+    );
+}
+
 /// The NRHO's perilune frame of `config/nrho_textured_budget.toml` (the LOLA DEM, the Sun 21
 /// to 52 deg up, the limb in view): where the camera is lower than the DEM's steep slopes the
 /// terrain hides the ground from it, so the planner marches the shadows (with the Sun's side
@@ -367,14 +380,7 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
             "{fit:?} against {now:?}"
         );
     }
-    let p = perilune.predicted;
-    assert!(
-        row.err_median <= p.median && row.err_p99 <= p.p99 && row.err_total <= p.total,
-        "{p:?} against the row's {} / {} / {}",
-        row.err_median,
-        row.err_p99,
-        row.err_total
-    );
+    predicted_bounds(&perilune, &row);
     assert!(
         row.err_p99 <= b.p99,
         "the rung taken measured p99 {}",
@@ -406,20 +412,13 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
             && r.relief_refine() == apolune.relief_refine
     })
     .expect("the apolune frame's row at the rung and refinement taken");
-    let p = apolune.predicted;
     assert!(
         row.err_median <= b.median && row.err_p99 <= b.p99,
         "measured {} / {}",
         row.err_median,
         row.err_p99
     );
-    assert!(
-        row.err_median <= p.median && row.err_p99 <= p.p99 && row.err_total <= p.total,
-        "{p:?} against the row's {} / {} / {}",
-        row.err_median,
-        row.err_p99,
-        row.err_total
-    );
+    predicted_bounds(&apolune, &row);
     // Fitted on the frames without a DEM alone.
     let plain = optistim::app::sweep::fit_csv(&[
         "docs/performance/budget_sweep.csv",

@@ -243,8 +243,9 @@ pub fn model_text(m: &ErrorModel, how: &str) -> String {
          # (p quadrangles per pixel, T the texture, E the share of lit pixels on the limb or terminator,\n\
          # H 1 where the albedo enters the reflectance non-linearly, as Hapke's w; with a DEM, S the\n\
          # share of the lit surface under its steep slopes' shadows, R its shading between pixels\n\
-         # where the quadrangles carry it, P 1 where each pixel reads it: each figure's relief term\n\
-         # and relief_margin are fitted on the frames with a DEM alone).\n\n{}",
+         # where the quadrangles carry it, P 1 where each pixel reads it, k how much more finely its\n\
+         # reads may get, relief_refine: each figure's relief term and relief_margin are fitted on\n\
+         # the frames with a DEM alone).\n\n{}",
         m.frames,
         m.to_toml()
     )

@@ -192,9 +192,9 @@ pub enum Regressors {
     /// [`Features::relief_per_pixel`] and `k` [`Features::relief_refine`]: what a DEM adds,
     /// its shadows' edges (more of them towards the terminator) and its shading where the
     /// quadrangles carry it, or the pixels' reads' error where they carry it, which falls as
-    /// the pixels a shadow's edge crosses are read again more finely. It is summed only on frames with a DEM
-    /// ([`Features::relief`]), fitted on them alone after the other terms, and bounded by its
-    /// own margin ([`FigureModel::relief_margin`]).
+    /// the pixels a shadow's edge crosses are read again more finely. It is summed only on
+    /// frames with a DEM ([`Features::relief`]), fitted on them alone after the other terms,
+    /// and bounded by its own margin ([`FigureModel::relief_margin`]).
     Relief,
 }
 
@@ -1356,18 +1356,17 @@ impl Planner {
         // cheapest first, the reads' refinement costing more than the quadrangles (at the
         // NRHO's apolune 0.8 s at 1 per pixel, 4.4 s read again 4 times as finely).
         let refines: Vec<u32> = if map_filter == MapFilter::Relief {
+            let floor = self
+                .base
+                .relief_refine
+                .min(RELIEF_REFINES[RELIEF_REFINES.len() - 1]);
             RELIEF_REFINES
                 .iter()
                 .copied()
-                .filter(|&k| k >= self.base.relief_refine)
+                .filter(|&k| k >= floor)
                 .collect()
         } else {
-            Vec::new()
-        };
-        let refines = if refines.is_empty() {
             vec![self.base.relief_refine]
-        } else {
-            refines
         };
         let predicted: Vec<(f64, u32, Predicted)> = refines
             .iter()

@@ -1139,7 +1139,7 @@ impl Step<'_> {
     /// (`docs/performance.md`, "Finer reads take their shadows from the coarser level").
     fn refine(&self, band: &mut Band, shading: (&Relief, SelfShadowing), g: &BlockGeometry) {
         let w = band.width;
-        let pending = std::mem::take(&mut band.refine);
+        let mut pending = std::mem::take(&mut band.refine);
         let (ns, nt) = g.reads;
         for &(i, r, mut before, mut absolute) in &pending {
             let (si, ti) = ((i - g.origin.0) as f64 / g.n, (r - g.origin.1) as f64 / g.n);
@@ -1184,8 +1184,9 @@ impl Step<'_> {
             }
         }
         band.clear_lattice();
+        // The list goes back empty, its allocation kept for the next block.
+        pending.clear();
         band.refine = pending;
-        band.refine.clear();
     }
 }
 

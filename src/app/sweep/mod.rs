@@ -392,8 +392,9 @@ fn reference_of(
 /// hides what the terrain hides from the camera (Eq. 33). 4: cells near an edge whose rays
 /// agree ask their corners too (`corner_depth`), which finds a sub-pixel lune's light. 5: a
 /// DEM that tilts the normals only is dark past the shape's own terminator, where a normal
-/// leaning towards the Sun had lit it.
-const REFERENCE_MODEL: u32 = 5;
+/// leaning towards the Sun had lit it. 6: the terrain's shadow rays are tested at the DEM's
+/// creases too, where a grazing ray dips below a ridge between two of its shortest steps.
+const REFERENCE_MODEL: u32 = 6;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

@@ -15,7 +15,7 @@
 //! shadowed, at the shadows' edges: the reference of a window of NRHO row 167 (129 deg of
 //! phase) was 2.2e-4 too bright in total and 3e-3 at the median of its lit pixels beside a
 //! fully dark one, which read as the renderer's bias there (`docs/performance.md`, "The
-//! bias beside fully dark pixels was the reference's").
+//! bias beside fully dark pixels was the reference's shadow test").
 
 use crate::body::Relief;
 use crate::body::pyramid::{MaxPyramid, RayPoint};

@@ -35,7 +35,8 @@
 //! render. The image is therefore cut in blocks of 8 x 8 pixels: lines of sight are cast at
 //! the blocks' corners and centre, and a block whose corners all meet the body and whose
 //! centre's longitude and latitude the corners' bilinear interpolation predicts within
-//! [`TOLERANCE_TEXELS`] (of a texel, or of the footprint where that is larger) has its reads'
+//! [`TOLERANCE_TEXELS`] (of a texel, or of the footprint where that is larger; under the
+//! relief's shadows, of the footprint: [`Step::tolerance_texels`]) has its reads'
 //! longitude and latitude interpolated. A block that fails is split in four, down to single
 //! pixels, interpolated from the lines of sight through their own and their neighbours'
 //! centres. A single pixel whose neighbours' lines of sight miss the body (the limb), or
@@ -123,7 +124,12 @@ const MIN_MU: f64 = 0.05;
 const BLOCK: usize = 8;
 
 /// How far the block centre's interpolated longitude and latitude may be from the cast ones
-/// [texels of the map, or of the pixel's footprint where that is larger], each.
+/// [texels of the map, or of the pixel's footprint where that is larger], each; under the
+/// relief's shadows, of the pixel's footprint whatever the texel ([`Step::tolerance_texels`]). At a
+/// hundredth of a texel a footprint ten times finer than the texel was placed to a tenth
+/// of a pixel, and a shadow's edge with it: NRHO row 167 (129 deg, 0.1 texel a pixel) had
+/// its pixels beside fully dark ones at p99 0.15 however finely they were read, 6.1e-2 with
+/// the footprint's hundredth (`docs/performance.md`, "Where a pixel's footprint lies").
 pub const TOLERANCE_TEXELS: f64 = 0.01;
 
 /// The largest spacing of the map reads over a pixel [texels]: a pixel that spans `len`
@@ -289,6 +295,26 @@ impl ReliefRead {
 }
 
 impl Step<'_> {
+    /// How far a block's centre may be from its corners' interpolation [texels], for a pixel
+    /// footprint of `footprint_texels`: [`TOLERANCE_TEXELS`] of a texel, or of the
+    /// footprint where that is larger; of the footprint whatever the texel where the relief
+    /// casts shadows on reads whose edges are placed across the blocks' sides (ray marching
+    /// or a horizon map, `relief_refine` above 1: [`Step::ring`]). At `relief_refine` 1
+    /// a shadow's edge along a block's side is not placed, and splitting the blocks finer
+    /// made more of them (the window of NRHO row 167: p99 0.74 against 0.33).
+    fn tolerance_texels(&self, footprint_texels: f64) -> f64 {
+        let edges = self.refine > 1
+            && self
+                .shading
+                .is_some_and(|(_, shadows)| shadows != SelfShadowing::Off);
+        TOLERANCE_TEXELS
+            * if edges {
+                footprint_texels
+            } else {
+                footprint_texels.max(1.0)
+            }
+    }
+
     /// The line of sight through image point `(u, v)` [px].
     fn probe(&self, u: f64, v: f64) -> Probe {
         let cam = self.pose.camera_position_m;
@@ -905,8 +931,10 @@ impl Step<'_> {
         ];
         let lat = [c[0].lat, c[1].lat, c[2].lat, c[3].lat];
         // The tolerance grows with the pixel's footprint beyond a texel: a shift of the
-        // footprint changes its mean by the shift's share of the footprint.
-        let tolerance = TOLERANCE_TEXELS * (centre.footprint_rad / band.dlat).max(1.0);
+        // footprint changes its mean by the shift's share of the footprint. Under the
+        // relief's shadows it is the footprint's however fine: a shadow's edge is sharp
+        // within a texel, and a pixel it crosses changes by the shift's share of the pixel.
+        let tolerance = self.tolerance_texels(centre.footprint_rad / band.dlat);
         let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
             .abs()
             .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());

@@ -125,11 +125,12 @@ const BLOCK: usize = 8;
 
 /// How far the block centre's interpolated longitude and latitude may be from the cast ones
 /// [texels of the map, or of the pixel's footprint where that is larger], each; under the
-/// relief's shadows, of the pixel's footprint whatever the texel ([`Step::tolerance_texels`]). At a
-/// hundredth of a texel a footprint ten times finer than the texel was placed to a tenth
-/// of a pixel, and a shadow's edge with it: NRHO row 167 (129 deg, 0.1 texel a pixel) had
-/// its pixels beside fully dark ones at p99 0.15 however finely they were read, 6.1e-2 with
-/// the footprint's hundredth (`docs/performance.md`, "Where a pixel's footprint lies").
+/// relief's shadows, of the pixel's footprint whatever the texel
+/// ([`Step::tolerance_texels`]). At a hundredth of a texel a footprint ten times finer than
+/// the texel was placed to a tenth of a pixel, and a shadow's edge with it: NRHO row 167
+/// (129 deg, 0.1 texel a pixel) had its pixels beside fully dark ones at p99 0.15 however
+/// finely they were read, 6.1e-2 with the footprint's hundredth (`docs/performance.md`,
+/// "Where a pixel's footprint lies").
 pub const TOLERANCE_TEXELS: f64 = 0.01;
 
 /// The largest spacing of the map reads over a pixel [texels]: a pixel that spans `len`
@@ -932,8 +933,9 @@ impl Step<'_> {
         let lat = [c[0].lat, c[1].lat, c[2].lat, c[3].lat];
         // The tolerance grows with the pixel's footprint beyond a texel: a shift of the
         // footprint changes its mean by the shift's share of the footprint. Under the
-        // relief's shadows it is the footprint's however fine: a shadow's edge is sharp
-        // within a texel, and a pixel it crosses changes by the shift's share of the pixel.
+        // relief's shadows, their edges placed across the blocks, it is the footprint's
+        // however fine: a shadow's edge is sharp within a texel, and a pixel it crosses
+        // changes by the shift's share of the pixel.
         let tolerance = self.tolerance_texels(centre.footprint_rad / band.dlat);
         let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
             .abs()

@@ -320,10 +320,10 @@ fn predicted_bounds(plan: &optistim::fidelity::budget::Plan, row: &optistim::app
 /// terrain hides the ground from it, so the planner marches the shadows (with the Sun's side
 /// alone it took them off and said it met the budget, its total then 1.1e-2 against the
 /// reference). Its rung comes from the model's relief term, fitted on the DEM frames of
-/// `sweeps/budget_dem.toml` (`docs/performance/budget_dem_sweep.csv`, this frame among them):
-/// the plan's features are the ones the fit saw, and its prediction bounds every figure its
-/// rung measured there (a model fitted without a DEM took 1/16 per pixel, where the p99
-/// measures 6.3e-2). A model fitted on no DEM frame takes its rung but claims nothing
+/// `sweeps/budget_dem.toml` (`docs/performance/budget_dem_model6_sweep.csv`, this frame
+/// among them): the plan's features are the ones the fit saw, and its prediction bounds
+/// every figure its rung measured there (a model fitted without a DEM took 1/16 per pixel,
+/// where the p99 measures 6.3e-2). A model fitted on no DEM frame takes its rung but claims nothing
 /// (`UNFITTED_DEM`); the apolune frame, read by the relief filter, is predicted over the
 /// budget's p99 (its reads' p99 measured 0.10 at every rung).
 #[test]
@@ -359,7 +359,7 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
     let b = Budget::default();
     assert!(perilune.predicted.p99 <= b.p99 && perilune.predicted.median <= b.median);
     // The sweep's row of this frame at the rung taken.
-    let mut sweep = csv::Reader::from_path("docs/performance/budget_dem_sweep.csv").unwrap();
+    let mut sweep = csv::Reader::from_path("docs/performance/budget_dem_model6_sweep.csv").unwrap();
     let row: optistim::app::sweep::Row = sweep
         .deserialize()
         .map(Result::unwrap)
@@ -391,12 +391,13 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
     assert!(apolune.predicted.p99 > b.p99 && !apolune.meets_budget);
     // Its pixels are read again where their reads disagree (read once, its p99 measured
     // 0.10): the rung and refinement taken measured within the budget's p99 and median
-    // (`relief_refine_inherit_sweep.csv` at 1 per pixel, `relief_refine_rungs_sweep.csv` at
-    // the other rungs), and the prediction bounds what they measured.
+    // (`relief_refine_inherit_model6_sweep.csv` at 1 per pixel,
+    // `relief_refine_rungs_model6_sweep.csv` at the other rungs), and the prediction bounds
+    // what they measured.
     assert!(apolune.relief_refine > 1, "{apolune:?}");
     let row: optistim::app::sweep::Row = [
-        "docs/performance/relief_refine_inherit_sweep.csv",
-        "docs/performance/relief_refine_rungs_sweep.csv",
+        "docs/performance/relief_refine_inherit_model6_sweep.csv",
+        "docs/performance/relief_refine_rungs_model6_sweep.csv",
     ]
     .iter()
     .flat_map(|f| {

@@ -323,8 +323,8 @@ fn predicted_bounds(plan: &optistim::fidelity::budget::Plan, row: &optistim::app
 /// `sweeps/budget_dem.toml` (`docs/performance/budget_dem_model6_sweep.csv`, this frame
 /// among them): the plan's features are the ones the fit saw, and its prediction bounds
 /// every figure its rung measured there (a model fitted without a DEM took 1/16 per pixel,
-/// where the p99 measures 6.3e-2). A model fitted on no DEM frame takes its rung but claims nothing
-/// (`UNFITTED_DEM`); the apolune frame, read by the relief filter, is predicted over the
+/// where the p99 measures 6.3e-2). A model fitted on no DEM frame takes its rung but claims
+/// nothing (`UNFITTED_DEM`); the apolune frame, read by the relief filter, is predicted over the
 /// budget's p99 (its reads' p99 measured 0.10 at every rung).
 #[test]
 fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {

@@ -112,7 +112,7 @@ impl Terrain {
         if t_out <= t0 {
             return None;
         }
-        let hit_within = 1e-9 * self.radius_m;
+        let hit_within = self.hit_within_m();
         let probe = |t: f64| {
             let q = origin + dir * t;
             let r = q.length();
@@ -183,6 +183,11 @@ impl Terrain {
         Some(t)
     }
 
+    /// How near the ground a ray's point counts as meeting it [m].
+    fn hit_within_m(&self) -> f64 {
+        1e-9 * self.radius_m
+    }
+
     /// A point of the ray between its points at `ta` and `tb` [m along it] (both above the
     /// ground, a minimal step apart) where it is below the ground: the bilinear ground is
     /// creased along the rows and columns of texel centres, and a ray grazing a ridge there
@@ -212,7 +217,7 @@ impl Terrain {
             };
             let f = (node - from) / d;
             let t = ta + f * (tb - ta);
-            (d != 0.0 && f > 0.0 && f < 1.0 && gap(t) <= 1e-9 * self.radius_m).then_some(t)
+            (d != 0.0 && f > 0.0 && f < 1.0 && gap(t) <= self.hit_within_m()).then_some(t)
         })
     }
 

@@ -242,8 +242,8 @@ fn the_reference_holds_the_light_of_a_sub_pixel_lune() {
 
 /// The planner reads an undisplaced DEM's shading and shadows over each pixel
 /// (`MapFilter::Relief`) where a pixel spans half a texel or more of the finer of the map's
-/// and the DEM's, and leaves nearer frames to the quadrangles (`Pixel`); a displacing DEM,
-/// whose lines of sight meet the displaced ground, never. The Moon of [`spec`] with 1-deg
+/// and the DEM's, and nearer only where no rung of the quadrangles (`Pixel`) is predicted to
+/// meet the budget; a displacing DEM, whose lines of sight meet the displaced ground, never. The Moon of [`spec`] with 1-deg
 /// maps: from 8 radii a pixel is 17.8 km, 0.59 texel; from 3 radii 5.1 km, 0.17. The
 /// model's relief term was fitted on undisplaced DEMs alone: a displacing one's frame does
 /// not claim the budget (`UNFITTED_DEM`), an undisplaced one's is not refused for it.
@@ -284,7 +284,11 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
         filter_at(8.0, true),
     );
     assert_eq!(far.map_filter, MapFilter::Relief);
-    assert_eq!(near.map_filter, MapFilter::Pixel);
+    // Nearer, the quadrangles' ladder comes first; these 2 km steps a texel apart shadow
+    // much of the lit surface, no rung of it is predicted to meet the budget, and the
+    // relief is read over each pixel after all (the NRHO's perilune, in reach of the
+    // quadrangles, keeps them: `a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term`).
+    assert_eq!(near.map_filter, MapFilter::Relief);
     assert_eq!(displaced.map_filter, MapFilter::Pixel);
     assert_eq!(displaced.outside_model, Some(UNFITTED_DEM));
     assert!(!displaced.meets_budget);
@@ -292,14 +296,19 @@ fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
     assert_ne!(near.outside_model, Some(UNFITTED_DEM));
     // `render.relief_refine` is chosen with the rung where the relief is read over each
     // pixel, at least the file's (it changes nothing elsewhere, where it stays 1).
-    assert!([1, 2, 4, 8].contains(&far.relief_refine));
-    assert_eq!(far.settings.relief_refine, far.relief_refine);
-    assert_eq!(near.relief_refine, 1);
-    let refined = |camera_radii: f64| filter_with(camera_radii, false, "relief_refine = 8");
-    let (far_refined, near_refined) = (refined(8.0), refined(3.0));
-    assert_eq!(far_refined.relief_refine, 8);
-    assert_eq!(far_refined.settings.relief_refine, 8);
-    assert_eq!(near_refined.relief_refine, 1);
+    for plan in [&far, &near] {
+        assert!([1, 2, 4, 8].contains(&plan.relief_refine));
+        assert_eq!(plan.settings.relief_refine, plan.relief_refine);
+    }
+    assert_eq!(displaced.relief_refine, 1);
+    let refined = |camera_radii: f64, displaces: bool| {
+        filter_with(camera_radii, displaces, "relief_refine = 8")
+    };
+    for plan in [refined(8.0, false), refined(3.0, false)] {
+        assert_eq!(plan.relief_refine, 8);
+        assert_eq!(plan.settings.relief_refine, 8);
+    }
+    assert_eq!(refined(8.0, true).relief_refine, 1);
 }
 
 /// `plan`'s prediction bounds every figure its frame measured at the same settings in a
@@ -430,4 +439,64 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
     let unfitted = planner(plain).plan(&cfg.scene, nearest);
     assert!(!unfitted.meets_budget);
     assert_eq!(unfitted.outside_model, Some(UNFITTED_DEM));
+}
+
+/// NRHO row 152 of `config/nrho_textured_budget.toml` (7,269 km, 130 deg, 0.19 DEM texels a
+/// pixel, the Sun low over nearly all of the lit surface): the quadrangles leave its shadows'
+/// edges coarse (p99 0.115 at 16 per pixel, `budget_dem_model6_sweep.csv`) and no rung of
+/// their ladder is predicted to meet the budget, so the planner reads the relief over each
+/// pixel, again more finely where the reads disagree. The rung and refinement it takes
+/// measured within the budget's p99 and median (`relief_near_rungs_sweep.csv`, the frame
+/// in the fit), and its prediction bounds every figure they measured.
+#[test]
+fn the_planner_reads_the_relief_per_pixel_where_the_quadrangles_fall_short() {
+    use optistim::fidelity::budget::{Budget, ErrorModel, Planner};
+    use std::path::Path;
+    let cfg = optistim::config::load(Path::new("config/nrho_textured_budget.toml")).unwrap();
+    let poses =
+        optistim::trajectory::read(Path::new("../shared/trajectories/nrho_2orbits.csv")).unwrap();
+    let planner = Planner::new(
+        &cfg.scene,
+        &cfg.settings,
+        Budget::default(),
+        ErrorModel::shipped().unwrap(),
+    );
+    let plan = planner.plan(&cfg.scene, &poses[152].1);
+    let b = Budget::default();
+    let rows = |file: &str| -> Vec<optistim::app::sweep::Row> {
+        csv::Reader::from_path(file)
+            .unwrap()
+            .into_deserialize()
+            .map(Result::unwrap)
+            .filter(|r: &optistim::app::sweep::Row| r.scene.starts_with("NRHO row 152 "))
+            .collect()
+    };
+    let quadrangles = rows("docs/performance/budget_dem_model6_sweep.csv");
+    let top = quadrangles
+        .iter()
+        .find(|r| r.points_per_px == 16.0)
+        .expect("the quadrangles' top rung");
+    assert_eq!(top.map_filter, MapFilter::Pixel);
+    assert!(top.err_p99 > b.p99, "{}", top.err_p99);
+    assert_eq!(plan.map_filter, MapFilter::Relief, "{plan:?}");
+    assert!(plan.relief_refine >= 4, "{plan:?}");
+    let row = rows("docs/performance/relief_near_rungs_sweep.csv")
+        .into_iter()
+        .find(|r| {
+            r.points_per_px == plan.points_per_pixel && r.relief_refine() == plan.relief_refine
+        })
+        .expect("the frame's row at the rung and refinement taken");
+    let (fit, now) = (row.features(), plan.features);
+    assert!(
+        (fit.lit_px - now.lit_px).abs() <= 1e-9 * fit.lit_px
+            && (fit.shadow_share - now.shadow_share).abs() <= 1e-9,
+        "{fit:?} against {now:?}"
+    );
+    assert!(
+        row.err_median <= b.median && row.err_p99 <= b.p99,
+        "measured {} / {}",
+        row.err_median,
+        row.err_p99
+    );
+    predicted_bounds(&plan, &row);
 }

@@ -43,7 +43,9 @@
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
 //! prediction meets the budget. Where each pixel reads the relief, it climbs the ladder again
 //! at each refinement of those reads (`relief_refine` 1, 2, 4, 8: `k` in the relief term,
-//! [`Features::relief_refine`]), the refinement costing more than the quadrangles. It models
+//! [`Features::relief_refine`]), the refinement costing more than the quadrangles; where a
+//! pixel is finer than that but no rung of the quadrangles is predicted to meet the budget
+//! under the relief's shadows, it climbs those reads' ladder after theirs. It models
 //! no more than the frame needs: shadows are cast only when the Sun is low enough over enough
 //! of the lit surface for the relief to hide it ([`Planner::shadowing`]), and the albedo map
 //! is read over each pixel's footprint at the level of detail it spans
@@ -835,6 +837,10 @@ const MIN_OPPOSITION_WIDTH: f64 = 0.01;
 /// times more there (16 per pixel at perilune; 4 per pixel took 18.6 s).
 pub const UNFITTED_DEM: &str = "the error model was not fitted on frames with this kind of DEM: its rung is taken, its prediction not claimed";
 
+/// One of the planner's candidates: the map filter, the quadrangles per pixel, the relief's
+/// refinement and the error the model predicts for them.
+type Candidate = (MapFilter, f64, u32, Predicted);
+
 /// The quadrangles per pixel of the ladder's rungs, cheapest first.
 pub const LADDER: [f64; 9] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
 
@@ -1191,13 +1197,21 @@ impl Planner {
 
     /// The ladder's rung at `points_per_px` over `base` as the planner renders a frame
     /// showing `features` within the model's domain: with the shadows
-    /// ([`Planner::shadowing`]) and the map filter ([`Planner::map_filter`]) it takes for
-    /// that frame. The sweep renders these (`rung = p` in a sweep file, over the setting's
-    /// own keys) to fit the model on what the planner renders.
-    pub fn planned(&self, base: &Settings, features: &Features, points_per_px: f64) -> Settings {
+    /// ([`Planner::shadowing`]) and the map filter ([`Planner::map_filter`], or `map_filter`
+    /// where given: the relief read over each pixel where the quadrangles' ladder falls short,
+    /// [`Planner::plan`]) it takes for that frame. The sweep renders these (`rung = p` in a
+    /// sweep file, over the setting's own keys, and `rung_map_filter`) to fit the model on
+    /// what the planner renders.
+    pub fn planned(
+        &self,
+        base: &Settings,
+        features: &Features,
+        points_per_px: f64,
+        map_filter: Option<MapFilter>,
+    ) -> Settings {
         Settings {
             self_shadowing: self.shadowing(features),
-            map_filter: self.map_filter(features),
+            map_filter: map_filter.unwrap_or_else(|| self.map_filter(features)),
             ..Planner::rung(base, points_per_px)
         }
     }
@@ -1284,7 +1298,8 @@ impl Planner {
     /// quadrangle's light over the pixels it covers, left the LOLA Moon at the NRHO's apolune
     /// (2.4 DEM texels a pixel) at median 1.0e-2 and 2.6e-3 with 2 and 16 quadrangles per
     /// pixel; read over each pixel, 8.3e-4 at 1 (`docs/performance.md`, "The relief over
-    /// each pixel").
+    /// each pixel"). Nearer, [`Planner::plan`] falls back on those reads where no rung of
+    /// the quadrangles is predicted to meet the budget.
     pub fn map_filter(&self, f: &Features) -> MapFilter {
         if f.lit_px > 0.0 && f.lit_px < f.edge_px {
             MapFilter::Area
@@ -1332,6 +1347,37 @@ impl Planner {
         None
     }
 
+    /// The ladder's predictions for a frame showing `features` read through `map_filter`:
+    /// every rung, and where each pixel reads the relief every rung again with its pixels
+    /// read more finely where their reads disagree (`relief_refine`, at least the base's),
+    /// cheapest first, the reads' refinement costing more than the quadrangles (at the NRHO's
+    /// apolune 0.8 s at 1 per pixel, 4.4 s read again 4 times as finely).
+    fn ladder(&self, features: &Features, map_filter: MapFilter) -> Vec<Candidate> {
+        let modelled = features.modelled(map_filter);
+        let refines: Vec<u32> = if map_filter == MapFilter::Relief {
+            let floor = self
+                .base
+                .relief_refine
+                .min(RELIEF_REFINES[RELIEF_REFINES.len() - 1]);
+            RELIEF_REFINES
+                .iter()
+                .copied()
+                .filter(|&k| k >= floor)
+                .collect()
+        } else {
+            vec![self.base.relief_refine]
+        };
+        refines
+            .iter()
+            .flat_map(|&k| {
+                let f = modelled.refined(k);
+                LADDER
+                    .iter()
+                    .map(move |&ppp| (map_filter, ppp, k, self.model.predict(ppp, &f)))
+            })
+            .collect()
+    }
+
     /// The cheapest rung predicted to meet the budget for the frame of `scene` from `pose`;
     /// for a ray-cast frame, its edges refined to the budget as it is cast.
     pub fn plan(&self, scene: &Scene, pose: &Pose) -> Plan {
@@ -1348,35 +1394,26 @@ impl Planner {
             _ => self.shadowing(&features),
         };
         let map_filter = self.map_filter(&features);
-        let modelled = features.modelled(map_filter);
         let b = self.budget;
         let fits = |p: &Predicted| p.median <= b.median && p.p99 <= b.p99 && p.total <= b.total;
-        // Where each pixel reads the relief, the ladder's rungs again with its pixels read
-        // more finely where their reads disagree (`relief_refine`, at least the base's):
-        // cheapest first, the reads' refinement costing more than the quadrangles (at the
-        // NRHO's apolune 0.8 s at 1 per pixel, 4.4 s read again 4 times as finely).
-        let refines: Vec<u32> = if map_filter == MapFilter::Relief {
-            let floor = self
-                .base
-                .relief_refine
-                .min(RELIEF_REFINES[RELIEF_REFINES.len() - 1]);
-            RELIEF_REFINES
-                .iter()
-                .copied()
-                .filter(|&k| k >= floor)
-                .collect()
-        } else {
-            vec![self.base.relief_refine]
-        };
-        let predicted: Vec<(f64, u32, Predicted)> = refines
-            .iter()
-            .flat_map(|&k| {
-                let f = modelled.refined(k);
-                LADDER
-                    .iter()
-                    .map(move |&ppp| (ppp, k, self.model.predict(ppp, &f)))
-            })
-            .collect();
+        let mut predicted = self.ladder(&features, map_filter);
+        // Where a pixel is finer than the relief's texels and the Sun casts its shadows, the
+        // quadrangles leave the shadows' edges coarse: on the NRHO at 130 deg of phase (rows
+        // 152 and 167, 0.19 and 0.09 texels a pixel) they measured p99 0.12 at 16 per pixel,
+        // where each pixel's reads, refined 8 times, measured 2.9e-2 and 2.8e-2 at 1/16
+        // (`docs/performance.md`, "The relief over each pixel at 130 degrees"). Those reads
+        // cost about a second a frame and more (a shadow ray a read), so they come after the
+        // quadrangles' ladder and are taken only where no rung of it is predicted to meet
+        // the budget.
+        if map_filter == MapFilter::Pixel
+            && outside.is_none()
+            && self.relief_fitted
+            && self.finest_over_map_texels.is_some()
+            && shadows != SelfShadowing::Off
+            && !predicted.iter().any(|(_, _, _, q)| fits(q))
+        {
+            predicted.extend(self.ladder(&features, MapFilter::Relief));
+        }
         // A figure no rung is predicted to meet (a textured frame's median, which more
         // quadrangles do not lower) does not hold back the others: a rung is then taken when
         // it meets the figures that can be met and comes within NEAR_BEST of the ladder's best
@@ -1384,7 +1421,7 @@ impl Planner {
         let best = |get: fn(&Predicted) -> f64| {
             predicted
                 .iter()
-                .map(|(_, _, q)| get(q))
+                .map(|(_, _, _, q)| get(q))
                 .fold(f64::INFINITY, f64::min)
         };
         let (best_median, best_p99, best_total) =
@@ -1399,16 +1436,34 @@ impl Planner {
         };
         let top = predicted[predicted.len() - 1];
         // A frame with nothing lit has no error to budget: the cheapest rung.
-        let ((ppp, refine, predicted), meets) = if features.lit_px == 0.0 {
+        let ((filter, ppp, refine, predicted), meets) = if features.lit_px == 0.0 {
             (predicted[0], true)
         } else if outside.is_some() {
             (top, false)
-        } else if let Some(&chosen) = predicted.iter().find(|(_, _, q)| fits(q)) {
+        } else if let Some(&chosen) = predicted.iter().find(|(_, _, _, q)| fits(q)) {
             (chosen, true)
         } else {
+            // Where no candidate is good enough on every figure (the relief's reads at 130
+            // deg, predicted over the median's budget where the quadrangles are not, and
+            // under the p99's where they are far over it), the first whose worst figure,
+            // over its budget, is within NEAR_BEST of the least.
+            let over = |q: &Predicted| {
+                (q.median / b.median)
+                    .max(q.p99 / b.p99)
+                    .max(q.total / b.total)
+            };
+            let least = predicted
+                .iter()
+                .map(|(_, _, _, q)| over(q))
+                .fold(f64::INFINITY, f64::min);
             let chosen = predicted
                 .iter()
-                .find(|(_, _, q)| good_enough(q))
+                .find(|(_, _, _, q)| good_enough(q))
+                .or_else(|| {
+                    predicted
+                        .iter()
+                        .find(|(_, _, _, q)| over(q) <= NEAR_BEST * least)
+                })
                 .copied()
                 .unwrap_or(top);
             (chosen, false)
@@ -1425,7 +1480,7 @@ impl Planner {
         let settings = Settings {
             self_shadowing: shadows,
             relief_refine: refine,
-            ..self.planned(&self.base, &features, ppp)
+            ..self.planned(&self.base, &features, ppp, Some(filter))
         };
         Plan {
             points_per_pixel: ppp,

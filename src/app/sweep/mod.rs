@@ -35,7 +35,9 @@
 //! [[setting]]
 //! name = "planned 1"
 //! rung = 1.0                        # the fidelity planner's rung, with the shadows and map
-//! ```                               # filter it takes for each scene (Planner::planned)
+//!                                   # filter it takes for each scene (Planner::planned)
+//! rung_map_filter = "relief"        # optional: the rung read through this map filter
+//! ```
 //!
 //! References are kept in `DIR/references/` under the SHA-256 of the scene text, the pose and
 //! the reference's settings, so a sweep run again (more settings, more repeats) reuses them.
@@ -90,6 +92,10 @@ struct RawSetting {
     /// the map filter the planner takes for each scene ([`Planner::planned`]), over
     /// `render`: the rows the error model is fitted on for frames with a DEM.
     rung: Option<f64>,
+    /// The rung's map filter where it is not the one the planner takes first for the scene:
+    /// "relief" for the pixels' own relief reads the planner falls back on where the
+    /// quadrangles' ladder does not meet the budget ([`Planner::plan`]).
+    rung_map_filter: Option<MapFilter>,
 }
 
 /// Another renderer measured on a scene (quoted in the sweep file with its source).
@@ -547,7 +553,7 @@ pub fn run(
             .map(|s| {
                 let mut cfg = with_setting(&scene, &s.render).map_err(|e| e.to_string())?;
                 if let (Some(p), Some(planner)) = (s.rung, &planner) {
-                    cfg.settings = planner.planned(&cfg.settings, &features, p);
+                    cfg.settings = planner.planned(&cfg.settings, &features, p, s.rung_map_filter);
                 }
                 Ok(cfg)
             })

@@ -324,6 +324,19 @@ fn predicted_bounds(plan: &optistim::fidelity::budget::Plan, row: &optistim::app
     );
 }
 
+/// `row` (`plan`'s frame at its settings in a sweep) measured within the budget's median and
+/// 99th percentile, and `plan`'s prediction bounds every figure it measured.
+fn within_median_and_p99(plan: &optistim::fidelity::budget::Plan, row: &optistim::app::sweep::Row) {
+    let b = plan.budget;
+    assert!(
+        row.err_median <= b.median && row.err_p99 <= b.p99,
+        "measured {} / {}",
+        row.err_median,
+        row.err_p99
+    );
+    predicted_bounds(plan, row);
+}
+
 /// The NRHO's perilune frame of `config/nrho_textured_budget.toml` (the LOLA DEM, the Sun 21
 /// to 52 deg up, the limb in view): where the camera is lower than the DEM's steep slopes the
 /// terrain hides the ground from it, so the planner marches the shadows (with the Sun's side
@@ -422,13 +435,7 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
             && r.relief_refine() == apolune.relief_refine
     })
     .expect("the apolune frame's row at the rung and refinement taken");
-    assert!(
-        row.err_median <= b.median && row.err_p99 <= b.p99,
-        "measured {} / {}",
-        row.err_median,
-        row.err_p99
-    );
-    predicted_bounds(&apolune, &row);
+    within_median_and_p99(&apolune, &row);
     // Fitted on the frames without a DEM alone.
     let plain = optistim::app::sweep::fit_csv(&[
         "docs/performance/budget_sweep.csv",
@@ -492,11 +499,5 @@ fn the_planner_reads_the_relief_per_pixel_where_the_quadrangles_fall_short() {
             && (fit.shadow_share - now.shadow_share).abs() <= 1e-9,
         "{fit:?} against {now:?}"
     );
-    assert!(
-        row.err_median <= b.median && row.err_p99 <= b.p99,
-        "measured {} / {}",
-        row.err_median,
-        row.err_p99
-    );
-    predicted_bounds(&plan, &row);
+    within_median_and_p99(&plan, &row);
 }

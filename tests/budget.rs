@@ -4,6 +4,7 @@
 
 mod common;
 use common::*;
+use optistim::app::sweep::read_csv;
 use optistim::fidelity::budget::LADDER;
 use optistim::fidelity::metrics::frame_error;
 use optistim::raycast::reference::{self, ReferenceSettings};
@@ -243,10 +244,11 @@ fn the_reference_holds_the_light_of_a_sub_pixel_lune() {
 /// The planner reads an undisplaced DEM's shading and shadows over each pixel
 /// (`MapFilter::Relief`) where a pixel spans half a texel or more of the finer of the map's
 /// and the DEM's, and nearer only where no rung of the quadrangles (`Pixel`) is predicted to
-/// meet the budget; a displacing DEM, whose lines of sight meet the displaced ground, never. The Moon of [`spec`] with 1-deg
-/// maps: from 8 radii a pixel is 17.8 km, 0.59 texel; from 3 radii 5.1 km, 0.17. The
-/// model's relief term was fitted on undisplaced DEMs alone: a displacing one's frame does
-/// not claim the budget (`UNFITTED_DEM`), an undisplaced one's is not refused for it.
+/// meet the budget; a displacing DEM, whose lines of sight meet the displaced ground, never.
+/// The Moon of [`spec`] with 1-deg maps: from 8 radii a pixel is 17.8 km, 0.59 texel; from
+/// 3 radii 5.1 km, 0.17. The model's relief term was fitted on undisplaced DEMs alone: a
+/// displacing one's frame does not claim the budget (`UNFITTED_DEM`), an undisplaced one's
+/// is not refused for it.
 #[test]
 fn the_planner_reads_the_relief_per_pixel_where_a_pixel_spans_half_a_texel() {
     use optistim::body::maps::{Encoding, Map};
@@ -381,13 +383,10 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
     let b = Budget::default();
     assert!(perilune.predicted.p99 <= b.p99 && perilune.predicted.median <= b.median);
     // The sweep's row of this frame at the rung taken.
-    let mut sweep = csv::Reader::from_path("docs/performance/budget_dem_model6_sweep.csv").unwrap();
-    let row: optistim::app::sweep::Row = sweep
-        .deserialize()
-        .map(Result::unwrap)
-        .find(|r: &optistim::app::sweep::Row| {
-            r.scene == "NRHO perilune" && r.points_per_px == perilune.points_per_pixel
-        })
+    let row = read_csv(&["docs/performance/budget_dem_model6_sweep.csv"])
+        .unwrap()
+        .into_iter()
+        .find(|r| r.scene == "NRHO perilune" && r.points_per_px == perilune.points_per_pixel)
         .expect("the perilune frame's row at the rung taken");
     let (fit, now) = (row.features(), perilune.features);
     for (a, b) in [
@@ -417,18 +416,12 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
     // `relief_refine_rungs_model6_sweep.csv` at the other rungs), and the prediction bounds
     // what they measured.
     assert!(apolune.relief_refine > 1, "{apolune:?}");
-    let row: optistim::app::sweep::Row = [
+    let row = read_csv(&[
         "docs/performance/relief_refine_inherit_model6_sweep.csv",
         "docs/performance/relief_refine_rungs_model6_sweep.csv",
-    ]
-    .iter()
-    .flat_map(|f| {
-        csv::Reader::from_path(f)
-            .unwrap()
-            .into_deserialize()
-            .map(Result::unwrap)
-            .collect::<Vec<optistim::app::sweep::Row>>()
-    })
+    ])
+    .unwrap()
+    .into_iter()
     .find(|r| {
         r.scene == "NRHO apolune"
             && r.points_per_px == apolune.points_per_pixel
@@ -471,12 +464,9 @@ fn the_planner_reads_the_relief_per_pixel_where_the_quadrangles_fall_short() {
     let plan = planner.plan(&cfg.scene, &poses[152].1);
     let b = Budget::default();
     let rows = |file: &str| -> Vec<optistim::app::sweep::Row> {
-        csv::Reader::from_path(file)
-            .unwrap()
-            .into_deserialize()
-            .map(Result::unwrap)
-            .filter(|r: &optistim::app::sweep::Row| r.scene.starts_with("NRHO row 152 "))
-            .collect()
+        let mut rows = read_csv(&[file]).unwrap();
+        rows.retain(|r| r.scene.starts_with("NRHO row 152 "));
+        rows
     };
     let quadrangles = rows("docs/performance/budget_dem_model6_sweep.csv");
     let top = quadrangles

@@ -837,9 +837,14 @@ const MIN_OPPOSITION_WIDTH: f64 = 0.01;
 /// times more there (16 per pixel at perilune; 4 per pixel took 18.6 s).
 pub const UNFITTED_DEM: &str = "the error model was not fitted on frames with this kind of DEM: its rung is taken, its prediction not claimed";
 
-/// One of the planner's candidates: the map filter, the quadrangles per pixel, the relief's
-/// refinement and the error the model predicts for them.
-type Candidate = (MapFilter, f64, u32, Predicted);
+/// One of the planner's candidates and the error the model predicts for it.
+#[derive(Clone, Copy)]
+struct Candidate {
+    map_filter: MapFilter,
+    points_per_px: f64,
+    relief_refine: u32,
+    predicted: Predicted,
+}
 
 /// The quadrangles per pixel of the ladder's rungs, cheapest first.
 pub const LADDER: [f64; 9] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
@@ -1371,9 +1376,12 @@ impl Planner {
             .iter()
             .flat_map(|&k| {
                 let f = modelled.refined(k);
-                LADDER
-                    .iter()
-                    .map(move |&ppp| (map_filter, ppp, k, self.model.predict(ppp, &f)))
+                LADDER.iter().map(move |&ppp| Candidate {
+                    map_filter,
+                    points_per_px: ppp,
+                    relief_refine: k,
+                    predicted: self.model.predict(ppp, &f),
+                })
             })
             .collect()
     }
@@ -1410,7 +1418,7 @@ impl Planner {
             && self.relief_fitted
             && self.finest_over_map_texels.is_some()
             && shadows != SelfShadowing::Off
-            && !predicted.iter().any(|(_, _, _, q)| fits(q))
+            && !predicted.iter().any(|c| fits(&c.predicted))
         {
             predicted.extend(self.ladder(&features, MapFilter::Relief));
         }
@@ -1421,7 +1429,7 @@ impl Planner {
         let best = |get: fn(&Predicted) -> f64| {
             predicted
                 .iter()
-                .map(|(_, _, _, q)| get(q))
+                .map(|c| get(&c.predicted))
                 .fold(f64::INFINITY, f64::min)
         };
         let (best_median, best_p99, best_total) =
@@ -1436,11 +1444,11 @@ impl Planner {
         };
         let top = predicted[predicted.len() - 1];
         // A frame with nothing lit has no error to budget: the cheapest rung.
-        let ((filter, ppp, refine, predicted), meets) = if features.lit_px == 0.0 {
+        let (chosen, meets) = if features.lit_px == 0.0 {
             (predicted[0], true)
         } else if outside.is_some() {
             (top, false)
-        } else if let Some(&chosen) = predicted.iter().find(|(_, _, _, q)| fits(q)) {
+        } else if let Some(&chosen) = predicted.iter().find(|c| fits(&c.predicted)) {
             (chosen, true)
         } else {
             // Where no candidate is good enough on every figure (the relief's reads at 130
@@ -1454,15 +1462,15 @@ impl Planner {
             };
             let least = predicted
                 .iter()
-                .map(|(_, _, _, q)| over(q))
+                .map(|c| over(&c.predicted))
                 .fold(f64::INFINITY, f64::min);
             let chosen = predicted
                 .iter()
-                .find(|(_, _, _, q)| good_enough(q))
+                .find(|c| good_enough(&c.predicted))
                 .or_else(|| {
                     predicted
                         .iter()
-                        .find(|(_, _, _, q)| over(q) <= NEAR_BEST * least)
+                        .find(|c| over(&c.predicted) <= NEAR_BEST * least)
                 })
                 .copied()
                 .unwrap_or(top);
@@ -1479,11 +1487,16 @@ impl Planner {
         let outside = outside.or(unfitted);
         let settings = Settings {
             self_shadowing: shadows,
-            relief_refine: refine,
-            ..self.planned(&self.base, &features, ppp, Some(filter))
+            relief_refine: chosen.relief_refine,
+            ..self.planned(
+                &self.base,
+                &features,
+                chosen.points_per_px,
+                Some(chosen.map_filter),
+            )
         };
         Plan {
-            points_per_pixel: ppp,
+            points_per_pixel: chosen.points_per_px,
             raycast_edge_samples: 0,
             raycast_clip: false,
             boundary_nodes: settings.boundary_nodes,
@@ -1494,7 +1507,7 @@ impl Planner {
             } else {
                 1
             },
-            predicted,
+            predicted: chosen.predicted,
             meets_budget: meets,
             outside_model: outside,
             budget: b,

@@ -224,6 +224,11 @@ impl Row {
 
 /// Fits the planner's error model on the ladder rows of one or more `sweep.csv` files.
 pub fn fit_csv(csv_paths: &[impl AsRef<Path>]) -> Result<ErrorModel, AppError> {
+    fit(&read_csv(csv_paths)?)
+}
+
+/// The rows of one or more `sweep.csv` files, in order.
+pub fn read_csv(csv_paths: &[impl AsRef<Path>]) -> Result<Vec<Row>, AppError> {
     let mut rows: Vec<Row> = Vec::new();
     for csv_path in csv_paths {
         let csv_path = csv_path.as_ref();
@@ -232,7 +237,7 @@ pub fn fit_csv(csv_paths: &[impl AsRef<Path>]) -> Result<ErrorModel, AppError> {
             rows.push(row.map_err(|e| bad(csv_path, e))?);
         }
     }
-    fit(&rows)
+    Ok(rows)
 }
 
 /// The model file's text: a header saying how it was made, then the model.

@@ -125,8 +125,14 @@ enum Command {
         /// Scene file (its [render.budget], or the default budget).
         #[arg(long)]
         scene: PathBuf,
+        /// Frames spread evenly over the whole stream.
         #[arg(long, default_value_t = 50)]
         frames: usize,
+        /// These rows of the stream (0-based, comma-separated) instead of `--frames`.
+        #[arg(long, value_delimiter = ',')]
+        rows: Option<Vec<usize>>,
+        /// Frames already measured in DIR/frames.csv on the same inputs are read, not
+        /// measured again: a run goes on where an interrupted one stopped.
         #[arg(long, default_value = "out/verify-budget")]
         out: PathBuf,
         /// The reference's relative tolerance per pixel.
@@ -481,6 +487,7 @@ fn run() -> anyhow::Result<()> {
             trajectory,
             scene,
             frames,
+            rows,
             out,
             tolerance,
             max_depth,
@@ -498,6 +505,7 @@ fn run() -> anyhow::Result<()> {
                 &scene.display().to_string(),
                 &trajectory,
                 frames,
+                rows.as_deref(),
                 &reference,
                 reference_method,
                 &out,

@@ -491,3 +491,115 @@ fn the_planner_reads_the_relief_per_pixel_where_the_quadrangles_fall_short() {
     );
     within_median_and_p99(&plan, &row);
 }
+
+/// `optistim verify-budget` loses nothing to an interruption: each frame's row is in
+/// `frames.csv` as soon as it is measured; a later run on the same inputs reads the rows there
+/// and measures only the frames it lacks (`--frames 3` after `--frames 2`: one more), drops a
+/// last line cut short, refuses to mix rows of other inputs, and takes explicit rows.
+#[test]
+fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
+    use optistim::app::verify_budget;
+    use optistim::raycast::reference::ReferenceMethod;
+    let dir = TempDir::new("verify-resume");
+    let nrho = std::fs::read_to_string("../shared/trajectories/nrho_2orbits.csv").unwrap();
+    let trajectory = dir.join("five.csv");
+    std::fs::write(
+        &trajectory,
+        nrho.lines().take(6).collect::<Vec<_>>().join("\n") + "\n",
+    )
+    .unwrap();
+    let scene = |render: &'static str| {
+        let path = dir.join(&format!("scene{}.toml", render.len()));
+        let s = SceneSpec {
+            resolution: [24, 24],
+            pixel_m: 5.5e-6 * 40.0,
+            render,
+            ..Default::default()
+        };
+        std::fs::write(&path, s.toml()).unwrap();
+        (optistim::config::load(&path).unwrap(), path)
+    };
+    let reference = ReferenceSettings {
+        tolerance: 1e-3,
+        max_depth: 4,
+        ..Default::default()
+    };
+    let out = dir.join("check");
+    let run = |(cfg, path): &(optistim::config::Config, std::path::PathBuf),
+               frames: usize,
+               rows: Option<&[usize]>,
+               out: &std::path::Path| {
+        let mut heard = Vec::new();
+        let r = verify_budget::run(
+            cfg,
+            path.to_str().unwrap(),
+            &trajectory,
+            frames,
+            rows,
+            &reference,
+            ReferenceMethod::Cubature,
+            out,
+            |l| heard.push(l.to_string()),
+        );
+        (r, heard)
+    };
+    let csv = out.join("frames.csv");
+    let rows_in = |text: &str| -> Vec<usize> {
+        csv::Reader::from_reader(text.as_bytes())
+            .records()
+            .map(|r| r.unwrap()[1].parse().unwrap())
+            .collect()
+    };
+    let plain = scene("");
+    let (r, heard) = run(&plain, 2, None, &out);
+    assert_eq!(r.unwrap().frames, 2);
+    assert_eq!(heard.len(), 2, "{heard:?}");
+    let first = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(rows_in(&first), [0, 4]);
+
+    // One more frame: rows 0 and 4 are read, row 2 measured and appended.
+    let (r, heard) = run(&plain, 3, None, &out);
+    let r = r.unwrap();
+    assert_eq!(r.frames, 3);
+    assert!(
+        heard[0].starts_with("2 of the 3 frames already measured"),
+        "{heard:?}"
+    );
+    assert_eq!(heard.len(), 2, "{heard:?}");
+    let second = std::fs::read_to_string(&csv).unwrap();
+    assert!(
+        second.starts_with(&first),
+        "the rows measured before are kept as they were"
+    );
+    assert_eq!(rows_in(&second), [0, 4, 2]);
+
+    // A line cut short by an interruption is dropped, and nothing is measured again.
+    std::fs::write(&csv, second.clone() + "0123abcd,1,7,1.0e").unwrap();
+    let (r, heard) = run(&plain, 3, None, &out);
+    assert_eq!(r.unwrap().frames, 3);
+    assert_eq!(heard.len(), 1, "{heard:?}");
+    assert_eq!(std::fs::read_to_string(&csv).unwrap(), second);
+
+    // Other settings are other inputs: refused, the file untouched.
+    let finer = scene("points_per_pixel = 2.0");
+    let (r, _) = run(&finer, 3, None, &out);
+    let e = r
+        .err()
+        .expect("rows of other inputs are refused")
+        .to_string();
+    assert!(
+        e.contains("frames.csv") && e.contains("other inputs"),
+        "{e}"
+    );
+    assert_eq!(std::fs::read_to_string(&csv).unwrap(), second);
+
+    // Explicit rows, and a row past the stream's end named.
+    let (r, _) = run(&finer, 3, Some(&[3, 1, 3]), &dir.join("rows"));
+    let r = r.unwrap();
+    assert_eq!(r.frames, 2);
+    let text = std::fs::read_to_string(dir.join("rows").join("frames.csv")).unwrap();
+    assert_eq!(rows_in(&text), [1, 3]);
+    let (r, _) = run(&finer, 3, Some(&[5]), &dir.join("rows"));
+    let e = r.err().expect("row 5 of 5").to_string();
+    assert!(e.contains("row 5") && e.contains("5 rows"), "{e}");
+}

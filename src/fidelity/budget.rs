@@ -1181,6 +1181,17 @@ impl Planner {
         self.budget
     }
 
+    /// The error model the planner predicts with.
+    pub fn model(&self) -> &ErrorModel {
+        &self.model
+    }
+
+    /// Whether the planner may read the relief over each pixel ([`MapFilter::Relief`]) on
+    /// this scene's frames: a DEM of the kind the model was fitted on, under an albedo map.
+    pub fn may_read_relief(&self) -> bool {
+        self.relief_fitted && self.finest_over_map_texels.is_some()
+    }
+
     /// The settings of the ladder's rung at `points_per_px` over `base`.
     pub fn rung(base: &Settings, points_per_px: f64) -> Settings {
         Settings {

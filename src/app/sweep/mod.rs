@@ -405,7 +405,7 @@ fn reference_of(
 /// DEM that tilts the normals only is dark past the shape's own terminator, where a normal
 /// leaning towards the Sun had lit it. 6: the terrain's shadow rays are tested at the DEM's
 /// creases too, where a grazing ray dips below a ridge between two of its shortest steps.
-const REFERENCE_MODEL: u32 = 6;
+pub(crate) const REFERENCE_MODEL: u32 = 6;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

@@ -556,6 +556,19 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
     assert_eq!(heard.len(), 2, "{heard:?}");
     let first = std::fs::read_to_string(&csv).unwrap();
     assert_eq!(rows_in(&first), [0, 4]);
+    // The total is kept signed too (a bias is told from scatter).
+    let mut reader = csv::Reader::from_reader(first.as_bytes());
+    let head = reader.headers().unwrap().clone();
+    let at = |name: &str| head.iter().position(|h| h == name).unwrap();
+    for r in reader.records() {
+        let r = r.unwrap();
+        let (total, signed): (f64, f64) = (
+            r[at("total")].parse().unwrap(),
+            r[at("total_signed")].parse().unwrap(),
+        );
+        assert_eq!(total, signed.abs());
+        assert!(total > 0.0 && total < 1e-2, "{total}");
+    }
 
     // One more frame: rows 0 and 4 are read, row 2 measured and appended.
     let (r, heard) = run(&plain, 3, None, &out);
@@ -583,10 +596,7 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
     // Other settings are other inputs: refused, the file untouched.
     let finer = scene("points_per_pixel = 2.0");
     let (r, _) = run(&finer, 3, None, &out);
-    let e = r
-        .err()
-        .expect("rows of other inputs are refused")
-        .to_string();
+    let e = r.expect_err("rows of other inputs are refused").to_string();
     assert!(
         e.contains("frames.csv") && e.contains("other inputs"),
         "{e}"
@@ -600,6 +610,6 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
     let text = std::fs::read_to_string(dir.join("rows").join("frames.csv")).unwrap();
     assert_eq!(rows_in(&text), [1, 3]);
     let (r, _) = run(&finer, 3, Some(&[5]), &dir.join("rows"));
-    let e = r.err().expect("row 5 of 5").to_string();
+    let e = r.expect_err("row 5 of 5").to_string();
     assert!(e.contains("row 5") && e.contains("5 rows"), "{e}");
 }

@@ -67,6 +67,9 @@ pub struct FrameCheck {
     pub median: f64,
     pub p99: f64,
     pub total: f64,
+    /// The light collected against the reference's, signed: `sum I / sum R - 1` (`total` is
+    /// its magnitude), which tells a bias from scatter.
+    pub total_signed: f64,
     pub meets_budget: bool,
     pub budget_ms: f64,
     pub reference_s: f64,
@@ -79,7 +82,7 @@ pub struct FrameCheck {
     pub verifiable_p99: bool,
     pub verifiable_total: bool,
     /// Per rung of the ladder, space-separated: time [ms], whether it met the budget's p99
-    /// and total, and its measured p99 and total.
+    /// and total, and its measured p99 and signed total (as `total_signed`).
     pub rung_ms: String,
     pub rung_meets: String,
     pub rung_p99: String,
@@ -365,6 +368,15 @@ pub fn run(
             &out.join("references"),
         )?;
         let e = frame_error(&frame.pl, &reference_pl, w, h);
+        let reference_sum: f64 = reference_pl.iter().sum();
+        let signed = |pl: &[f64]| {
+            let sum: f64 = pl.iter().sum();
+            match (reference_sum > 0.0, sum == 0.0) {
+                (true, _) => sum / reference_sum - 1.0,
+                (false, true) => 0.0,
+                (false, false) => f64::INFINITY,
+            }
+        };
         let (ver_p99, ver_total) = (ref_p99 <= budget.p99, ref_total <= budget.total);
         let verifiable = ver_p99 && ver_total;
         let (tails, all) = meets(&e, &budget);
@@ -378,7 +390,7 @@ pub fn run(
             rungs[0].push(format!("{ms:.1}"));
             rungs[1].push(if t { "1" } else { "0" }.to_string());
             rungs[2].push(format!("{:.4e}", ef.p99));
-            rungs[3].push(format!("{:.4e}", ef.total));
+            rungs[3].push(format!("{:.4e}", signed(&f.pl)));
         }
         let [rung_ms, rung_meets, rung_p99, rung_total] = rungs.map(|r| r.join(" "));
         let c = FrameCheck {
@@ -399,6 +411,7 @@ pub fn run(
             median: e.median,
             p99: e.p99,
             total: e.total,
+            total_signed: signed(&frame.pl),
             meets_budget: tails,
             budget_ms,
             reference_s: ref_s,
@@ -498,7 +511,7 @@ pub fn run(
             column(&c.rung_total)?,
         );
         for k in 0..ladder.len() {
-            let (p_ok, t_ok) = (p99[k] <= budget.p99, total[k] <= budget.total);
+            let (p_ok, t_ok) = (p99[k] <= budget.p99, total[k].abs() <= budget.total);
             rung_times[k].push(ms[k]);
             rung_ok[k] &= (p_ok && t_ok)
                 || (!c.verifiable && (p_ok || !c.verifiable_p99) && (t_ok || !c.verifiable_total));

@@ -134,10 +134,11 @@ const RELIEF_RUNG_REFINES: [u32; 4] = [1, 2, 4, 8];
 
 /// The fixed settings the planner is measured against, cheapest first, with their names:
 /// the ladder's rungs, or, for a ray-cast scene, 4 to 64 rays per side at the edges. Where
-/// the planner may read the relief over each pixel (`relief`), those reads at 2 quadrangles
-/// per pixel (what it takes most often; the quadrangles hardly change such a frame's error),
-/// with `relief_refine` 1 to 8 and the shadows ray-marched as it casts them, follow: on the NRHO's DEM frames no rung of the quadrangles
-/// met the budget's p99, so the planner is measured against the reads too.
+/// the planner may read the relief over each pixel (`relief`), those reads follow: 2
+/// quadrangles per pixel (what it takes most often; the quadrangles hardly change such a
+/// frame's error), `relief_refine` 1 to 8, the shadows ray-marched as it casts them. On the
+/// NRHO's DEM frames no rung of the quadrangles met the budget's p99, so the planner is
+/// measured against the reads too.
 pub fn fixed_ladder(config: &Config, relief: bool) -> Vec<(String, Settings, Option<f64>)> {
     if config.scene.is_ray_cast() {
         let rays = |n: u32| {
@@ -184,7 +185,8 @@ pub fn fixed_ladder(config: &Config, relief: bool) -> Vec<(String, Settings, Opt
                 };
                 (
                     format!(
-                        "points_per_pixel = {RELIEF_RUNG_POINTS_PER_PX}, map_filter = \"relief\", relief_refine = {k}, self_shadowing = \"ray_marching\""
+                        "points_per_pixel = {RELIEF_RUNG_POINTS_PER_PX}, map_filter = \"relief\", \
+                         relief_refine = {k}, self_shadowing = \"ray_marching\""
                     ),
                     s,
                     Some(RELIEF_RUNG_POINTS_PER_PX),

@@ -32,7 +32,7 @@
 
 use super::AppError;
 use crate::config::Config;
-use crate::fidelity::budget::{Budget, LADDER, Planner};
+use crate::fidelity::budget::{Budget, LADDER, Planner, RELIEF_REFINES};
 use crate::fidelity::metrics::{FrameError, frame_error};
 use crate::raycast::reference::{ReferenceMethod, ReferenceSettings};
 use crate::render::settings::SelfShadowing;
@@ -128,9 +128,9 @@ pub struct VerifyReport {
     pub csv: String,
 }
 
-/// The relief reads' fixed rungs ([`fixed_ladder`]).
+/// The quadrangles per pixel of the relief reads' fixed rungs ([`fixed_ladder`]), whose
+/// `relief_refine` are the planner's ([`RELIEF_REFINES`]).
 const RELIEF_RUNG_POINTS_PER_PX: f64 = 2.0;
-const RELIEF_RUNG_REFINES: [u32; 4] = [1, 2, 4, 8];
 
 /// The fixed settings the planner is measured against, cheapest first, with their names:
 /// the ladder's rungs, or, for a ray-cast scene, 4 to 64 rays per side at the edges. Where
@@ -176,7 +176,7 @@ pub fn fixed_ladder(config: &Config, relief: bool) -> Vec<(String, Settings, Opt
             })
             .collect();
         if relief {
-            ladder.extend(RELIEF_RUNG_REFINES.iter().map(|&k| {
+            ladder.extend(RELIEF_REFINES.iter().map(|&k| {
                 let s = Settings {
                     map_filter: MapFilter::Relief,
                     relief_refine: k,

@@ -807,7 +807,7 @@ const NEAR_BEST: f64 = 1.5;
 /// The refinements of a pixel's relief reads the planner may take (`render.relief_refine`):
 /// at the NRHO's far frames 1 left the 99th percentile at 0.10 to 0.17 and 8 brought it to
 /// 2.2e-2 to 2.9e-2 (`docs/performance.md`, "Pixels read again where their reads disagree").
-const RELIEF_REFINES: [u32; 4] = [1, 2, 4, 8];
+pub const RELIEF_REFINES: [u32; 4] = [1, 2, 4, 8];
 
 /// A ray-cast frame's first rays per pixel side at its edges under a budget: with 4, pixels
 /// whose 4 x 4 rays all met one class hid errors the estimate could not see (on Bennu at

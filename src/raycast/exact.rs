@@ -700,6 +700,8 @@ fn render_camera(scene: &Scene, pose: &Pose) -> Result<ReferenceFrame, RenderErr
         est_error_median: median,
         est_error_p99: p99,
         est_error_max: max,
+        signed_error_total: est_total,
+        signed_error_p99: p99,
         seconds,
     };
     Ok(ReferenceFrame {

@@ -91,15 +91,16 @@
 //! 1.0 -> 0.245, for 9 % of the budgeted file's median frame (`docs/performance.md`, "A
 //! shadow's edge between the reads").
 //!
-//! Where even that leaves a pixel's reads disagreeing (`relief_refine` above 1), the pixel
-//! whose reads' own estimate is above [`REFINE_ABOVE`], or whose reads and the ring around
-//! them hold both light and shadow, is read again on a lattice of its own twice as fine per
-//! side, and again while its light still moves, up to `relief_refine` times per side
-//! ([`Step::refine`]); the blocks' lattices then reach one read beyond each side, and a limb
-//! pixel casts `relief_refine` times the lines of sight per side. From the second level on a
-//! read takes its shadows from the four reads around it on the level before where they
-//! agree. The NRHO's far frames' p99 from 0.10-0.17 to 2.2e-2-2.9e-2 at 8, for 6.1 to 8.6
-//! times the time (`docs/performance.md`, "Pixels read again where their reads disagree"
+//! Where even that leaves a pixel's reads disagreeing (`relief_refine` above 1, under which
+//! every pixel is read at least [`REFINED_MIN_READS`] times per side, so that its reads can
+//! disagree at all), the pixel whose reads' own estimate is above [`REFINE_ABOVE`], or whose
+//! reads and the ring around them hold both light and shadow, is read again on a lattice of its
+//! own twice as fine per side, and again while its light still moves, up to `relief_refine`
+//! times per side ([`Step::refine`]); the blocks' lattices then reach one read beyond each
+//! side, and a limb pixel casts `relief_refine` times the lines of sight per side. From the
+//! second level on a read takes its shadows from the four reads around it on the level before
+//! where they agree. The NRHO's far frames' p99 from 0.10-0.17 to 2.2e-2-2.9e-2 at 8, for 6.1
+//! to 8.6 times the time (`docs/performance.md`, "Pixels read again where their reads disagree"
 //! and "Finer reads take their shadows from the coarser level").
 //!
 //! Several maps over one geometry ([`apply_maps`]: the camera's map and the maps of bands
@@ -137,6 +138,27 @@ pub const TOLERANCE_TEXELS: f64 = 0.01;
 /// texels along an axis is read at `ceil(len / 0.5)` midpoints along it, so that the bilinear
 /// map's kinks at texel centres are integrated to a small fraction of a texel's change.
 const READ_SPACING_TEXELS: f64 = 0.5;
+
+/// Under `MapFilter::Relief` with `relief_refine` above 1, the fewest reads per pixel side.
+/// A pixel finer than half a texel was read once, at its centre, and [`Step::refine`] never
+/// read it again: one read has nothing to disagree with. That read is also biased bright:
+/// the light of a DEM's slope is concave in `mu0` (Lommel-Seeliger's `mu0 / (mu0 + mu)`), so
+/// the centre's light is above the pixel's mean, most towards the terminator, and no level
+/// of refinement saw it. Two NRHO frames at `relief_refine` 8 against their references
+/// (row 158: 6,105 km, 131.6 deg, 0.1 texel a pixel, depth 8; row 171: 3,781 km, 121.3 deg,
+/// depth 6), by the fewest reads per side:
+///
+/// | reads at least | row 158 median, p99, total | footprint step | row 171 median, p99, total |
+/// | --- | --- | --- | --- |
+/// | 1 | 6.0e-4, 3.20e-2, +1.34e-4 | 8.7 s | 6.2e-4, 2.04e-2, +1.92e-4 |
+/// | 2 | 2.9e-4, 2.26e-2, +3.9e-5 | 11.5 s | 2.2e-4, 1.06e-2, +1.06e-4 |
+/// | 3 | 1.8e-4, 2.13e-2, +2.3e-5 | 13.6 s | 1.2e-4, 9.2e-3, +6.3e-5 |
+/// | 4 | 1.2e-4, 2.12e-2, +7.4e-6 | 17.8 s | 8.6e-5, 8.8e-3, +4.0e-5 |
+///
+/// Three is the fewest that meets the default budget (1e-3, 3e-2, 1e-4) on both; a pixel
+/// over a texel was read three times per side already (`docs/performance.md`, "At least
+/// three reads a side").
+const REFINED_MIN_READS: usize = 3;
 
 /// At most this many reads per pixel side; beyond (a pixel over more than 4 texels) each
 /// read takes the area-averaged level of its share of the footprint.
@@ -985,7 +1007,15 @@ impl Step<'_> {
             texels(lon[1] - lon[0], lat[1] - lat[0]).max(texels(lon[3] - lon[2], lat[3] - lat[2]));
         let len_t =
             texels(lon[2] - lon[0], lat[2] - lat[0]).max(texels(lon[3] - lon[1], lat[3] - lat[1]));
-        let reads = |len: f64| ((len / READ_SPACING_TEXELS).ceil() as usize).clamp(1, MAX_READS);
+        // Under the relief's refinement, at least two reads per side: one read has nothing
+        // to disagree with.
+        let least = if self.shading.is_some() && self.refine > 1 {
+            REFINED_MIN_READS
+        } else {
+            1
+        };
+        let reads =
+            |len: f64| ((len / READ_SPACING_TEXELS).ceil() as usize).clamp(least, MAX_READS);
         let (ns, nt) = (reads(len_s), reads(len_t));
         band.offsets.clear();
         for b in 0..nt {

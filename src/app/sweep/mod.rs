@@ -385,7 +385,7 @@ fn reference_of(
     scene: &SweepScene,
     settings: &ReferenceSettings,
     dir: &Path,
-) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
+) -> Result<CachedReference, AppError> {
     let c = &scene.config;
     cached_reference(
         &scene.text,
@@ -410,10 +410,30 @@ pub(crate) const REFERENCE_MODEL: u32 = 6;
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;
 
+/// A reference image and what it says of itself ([`cached_reference`]).
+pub struct CachedReference {
+    pub pl: Vec<f64>,
+    /// What it took to render [s].
+    pub seconds: f64,
+    /// Its own error bound: total and p99 per lit pixel, relative
+    /// ([`reference::ReferenceReport::est_error_total`]).
+    pub bound_total: f64,
+    pub bound_p99: f64,
+    /// Its estimate with the cells' signs kept
+    /// ([`reference::ReferenceReport::signed_error_total`]); the bound's in a cache written
+    /// before the estimate was kept.
+    pub signed_total: f64,
+    pub signed_p99: f64,
+    /// Read from the cache.
+    pub reused: bool,
+}
+
 /// The reference of `scene` from `pose` by `method`, from the cache in `dir` (keyed by the
 /// SHA-256 of `text`, the scene file's text, the pose, and the cubature's settings and
-/// [`REFERENCE_MODEL`] or the exact reference's [`EXACT_MODEL`]) or rendered and cached:
-/// `(image, seconds it took, its estimated total error, its estimated p99, reused)`.
+/// [`REFERENCE_MODEL`] or the exact reference's [`EXACT_MODEL`]) or rendered and cached.
+/// A cache file is the image after a head of five little-endian f64: seconds, the bound's
+/// total and p99, the signed estimate's total and p99 (three in the files written before
+/// the signed estimate: the bound then stands for it).
 pub fn cached_reference(
     text: &str,
     scene: &crate::scene::Scene,
@@ -421,7 +441,7 @@ pub fn cached_reference(
     settings: &ReferenceSettings,
     method: ReferenceMethod,
     dir: &Path,
-) -> Result<(Vec<f64>, f64, f64, f64, bool), AppError> {
+) -> Result<CachedReference, AppError> {
     let method = method.resolve(scene, p);
     let how = if method == ReferenceMethod::Exact {
         format!("exact model {EXACT_MODEL}")
@@ -450,19 +470,30 @@ pub fn cached_reference(
         (i.width_px * i.height_px) as usize
     };
     if let Ok(bytes) = std::fs::read(&file)
-        && bytes.len() == 8 * (n + 3)
+        && let Some(head) = [5, 3].into_iter().find(|k| bytes.len() == 8 * (n + k))
     {
         let v: Vec<f64> = bytes
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
             .collect();
-        return Ok((v[3..].to_vec(), v[0], v[1], v[2], true));
+        let signed = if head == 5 { [v[3], v[4]] } else { [v[1], v[2]] };
+        return Ok(CachedReference {
+            pl: v[head..].to_vec(),
+            seconds: v[0],
+            bound_total: v[1],
+            bound_p99: v[2],
+            signed_total: signed[0],
+            signed_p99: signed[1],
+            reused: true,
+        });
     }
     let r = reference::render_by(scene, p, settings, method)?;
     let head = [
         r.report.seconds,
         r.report.est_error_total,
         r.report.est_error_p99,
+        r.report.signed_error_total,
+        r.report.signed_error_p99,
     ];
     std::fs::create_dir_all(dir).map_err(|e| bad(dir, e))?;
     let bytes: Vec<u8> = head
@@ -471,7 +502,15 @@ pub fn cached_reference(
         .flat_map(|x| x.to_le_bytes())
         .collect();
     std::fs::write(&file, bytes).map_err(|e| bad(&file, e))?;
-    Ok((r.frame.pl, head[0], head[1], head[2], false))
+    Ok(CachedReference {
+        pl: r.frame.pl,
+        seconds: head[0],
+        bound_total: head[1],
+        bound_p99: head[2],
+        signed_total: head[3],
+        signed_p99: head[4],
+        reused: false,
+    })
 }
 
 /// Marks the rows of one scene that are on its Pareto front (time and every error figure).
@@ -529,10 +568,18 @@ pub fn run(
         let intr = &scene.config.scene.camera.intrinsics;
         let (w, h) = (intr.width_px as usize, intr.height_px as usize);
         progress(&format!("{}: reference ...", scene.name));
-        let (reference, ref_s, ref_total, ref_p99, reused) =
-            reference_of(&scene, &ref_settings, &out.join("references"))?;
+        let CachedReference {
+            pl: reference,
+            seconds: ref_s,
+            bound_total: ref_total,
+            bound_p99: ref_p99,
+            signed_total,
+            signed_p99,
+            reused,
+        } = reference_of(&scene, &ref_settings, &out.join("references"))?;
         progress(&format!(
-            "{}: reference {:.1} s{} (its estimated error: total {ref_total:.1e}, p99 {ref_p99:.1e})",
+            "{}: reference {:.1} s{} (its error bound: total {ref_total:.1e}, p99 {ref_p99:.1e}; \
+             with the signs kept: {signed_total:.1e}, {signed_p99:.1e})",
             scene.name,
             ref_s,
             if reused { ", reused" } else { "" }

@@ -168,8 +168,21 @@ const MAX_READS: usize = 8;
 /// `MapFilter::Relief` times the frame's `relief_refine`, at most [`MAX_CAST`].
 const CAST: usize = 8;
 
-/// The most lines of sight per side of a cast pixel under `relief_refine`.
-const MAX_CAST: usize = 32;
+/// The most lines of sight per side of a cast pixel under `relief_refine` (8 times
+/// [`CAST`]: `relief_refine` 8 casts 64 x 64). Near the limb a read's light per unit of the
+/// shape's projected area, `mu0 mu / mu_shape`, grows as the inverse square root of the
+/// distance to the limb, and a regular lattice of lines of sight integrates that the worse
+/// the nearer its first line falls to the limb: the limb pixels' share of the total of NRHO
+/// row 79 (56,562 km, 96 deg, 1,657 pixels beside the dark sky, 2.2 % of the light), against
+/// its reference, was -1.5e-4 at 16 x 16, +1.55e-4 at 32 x 32, -4.9e-5 at 64 x 64 and at
+/// 96 x 96. At 64 the frame's total went from +1.95e-4 (over the budget) to -5.6e-6 and its
+/// p99 from 2.10e-2 to 2.01e-2; the NRHO's apolune frames (rows 0 and 712) from -4.8e-5
+/// and -9.8e-5 to -2.8e-5 and -5.4e-5, p99 2.64e-2 and 2.53e-2 to 2.36e-2 and 2.13e-2; for
+/// about 1.5 times the footprint step on those far frames, whose limb pixels are most of
+/// their reads. A lattice jittered within its cells (deterministically) was no better: it
+/// raised the p99 of rows 0, 712 and 356 by 3e-3 to 5e-3 (`docs/performance.md`, "The
+/// limb's lines of sight").
+const MAX_CAST: usize = 64;
 
 /// Under `MapFilter::Relief` with `relief_refine` above 1: a pixel whose reads' own error
 /// estimate ([`relief_estimate`]) exceeds this, or whose reads hold light and shadow

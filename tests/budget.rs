@@ -556,6 +556,52 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
     assert_eq!(heard.len(), 2, "{heard:?}");
     let first = std::fs::read_to_string(&csv).unwrap();
     assert_eq!(rows_in(&first), [0, 4]);
+    // The reference's bound and its estimate with the cells' signs kept, both in the rows.
+    let mut reader = csv::Reader::from_reader(first.as_bytes());
+    let head = reader.headers().unwrap().clone();
+    let at = |name: &str| head.iter().position(|h| h == name).unwrap();
+    for r in reader.records() {
+        let r = r.unwrap();
+        let f = |name: &str| -> f64 { r[at(name)].parse().unwrap() };
+        assert!(f("reference_signed_total") <= f("reference_est_total"));
+        assert!(f("reference_signed_p99") <= f("reference_est_p99"));
+    }
+    // A reference cached before the signed estimate was kept (a head of three f64, not
+    // five) is read, its bound standing for the estimate, and not rendered again.
+    let old = dir.join("old");
+    std::fs::create_dir_all(old.join("references")).unwrap();
+    for e in std::fs::read_dir(out.join("references")).unwrap() {
+        let p = e.unwrap().path();
+        let b = std::fs::read(&p).unwrap();
+        assert_eq!(b.len(), 8 * (24 * 24 + 5));
+        let three: Vec<u8> = b[..24].iter().chain(&b[40..]).copied().collect();
+        std::fs::write(old.join("references").join(p.file_name().unwrap()), three).unwrap();
+    }
+    let cached = |d: &std::path::Path| -> Vec<Vec<u8>> {
+        let mut v: Vec<_> = std::fs::read_dir(d.join("references"))
+            .unwrap()
+            .map(|e| std::fs::read(e.unwrap().path()).unwrap())
+            .collect();
+        v.sort();
+        v
+    };
+    let before = cached(&old);
+    run(&plain, 2, None, &old).0.unwrap();
+    assert_eq!(
+        cached(&old),
+        before,
+        "the old caches are read, not rendered again"
+    );
+    let text = std::fs::read_to_string(old.join("frames.csv")).unwrap();
+    let mut reader = csv::Reader::from_reader(text.as_bytes());
+    for r in reader.records() {
+        let r = r.unwrap();
+        assert_eq!(
+            r[at("reference_signed_total")],
+            r[at("reference_est_total")]
+        );
+        assert_eq!(r[at("reference_signed_p99")], r[at("reference_est_p99")]);
+    }
     // The total is kept signed too (a bias is told from scatter).
     let mut reader = csv::Reader::from_reader(first.as_bytes());
     let head = reader.headers().unwrap().clone();

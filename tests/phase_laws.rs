@@ -263,9 +263,7 @@ fn the_reference_matches_the_exact_finite_distance_flux_at_every_phase() {
                 eprintln!(
                     "{brdf:16} phase {phase:5.1} d/R {dr:6.0}: reference/exact - 1 = {e:.2e} \
                      (its estimate {:.2e}, with the cells' signs {:.2e}, {} rays)",
-                    r.report.est_error_total,
-                    r.report.signed_error_total,
-                    r.report.rays
+                    r.report.est_error_total, r.report.signed_error_total, r.report.rays
                 );
                 // The estimate with the cells' signs kept (the same cells' errors added with
                 // their signs) is below the bound and, on these smooth spheres, still above

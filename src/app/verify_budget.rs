@@ -12,12 +12,13 @@
 //! and each rung's error and time) and a summary: the share of frames whose measured error
 //! meets the budget (p99 and total, and median), the cheapest fixed rung that meets it on
 //! every frame, and the planner's speed-up over that rung (median and slowest frame). A
-//! frame whose reference is not converged within the budget (its own error estimate, p99 or
-//! total, above it: a crescent a pixel or two thick) cannot be judged: it is counted apart,
-//! and the shares of verifiable frames and the fixed rung leave it out. Each figure is also
-//! judged on its own where the reference is converged for it: a reference at a tolerance of
-//! 1e-3 per pixel (a mesh's takes tens of seconds at that) bounds its own total only to
-//! about 1e-3, above the budget's 1e-4, but its 99th percentile well within 3e-2.
+//! frame whose reference is not converged within a third of the budget (its own error
+//! estimate with its cells' signs kept, p99 or total, above that: [`JUDGED_BELOW`]; a
+//! crescent a pixel or two thick) cannot be judged: it is counted apart, and the shares of
+//! verifiable frames and the fixed rung leave it out. Each figure is also judged on its own
+//! where the reference is converged for it: a reference at a tolerance of 1e-3 per pixel (a
+//! mesh's takes tens of seconds at that) estimates its own total only to about 1e-3, above
+//! the budget's 1e-4, but its 99th percentile well within 3e-2.
 //!
 //! A check over a stream takes hours where each reference takes minutes (a 1024 x 1024 DEM
 //! frame: 2.5 to 7 min on 2 cores), so nothing of it is lost to an interruption:

@@ -45,7 +45,7 @@
 //! cells), an estimate, not a bound. On NRHO row 158 of the textured Moon with its DEM's
 //! shadows (1024 x 1024, tolerance 1e-4), the reference at depth 6 against the one at
 //! depth 8 measured total 1.0e-5 and p99 2.2e-4, its bound 1.4e-3 and 1.17e-2
-//! (`docs/performance.md`, "A reference's error with its signs").
+//! (`docs/performance.md`, "A reference's error with its signs kept").
 //!
 //! Each pixel's cells are summed in a fixed order by one thread: the same scene and pose give
 //! the same image, bit for bit, whatever the thread count.

@@ -476,7 +476,11 @@ pub fn cached_reference(
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
             .collect();
-        let signed = if head == 5 { [v[3], v[4]] } else { [v[1], v[2]] };
+        let signed = if head == 5 {
+            [v[3], v[4]]
+        } else {
+            [v[1], v[2]]
+        };
         return Ok(CachedReference {
             pl: v[head..].to_vec(),
             seconds: v[0],

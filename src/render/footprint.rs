@@ -173,7 +173,7 @@ const CAST: usize = 8;
 /// shape's projected area, `mu0 mu / mu_shape`, grows as the inverse square root of the
 /// distance to the limb, and a regular lattice of lines of sight integrates that the worse
 /// the nearer its first line falls to the limb: the limb pixels' share of the total of NRHO
-/// row 79 (56,562 km, 96 deg, 1,657 pixels beside the dark sky, 2.2 % of the light), against
+/// row 79 (56,562 km, 96 deg, 1,657 pixels beside an unlit one, 2.2 % of the light), against
 /// its reference, was -1.5e-4 at 16 x 16, +1.55e-4 at 32 x 32, -4.9e-5 at 64 x 64 and at
 /// 96 x 96. At 64 the frame's total went from +1.95e-4 (over the budget) to -5.6e-6 and its
 /// p99 from 2.10e-2 to 2.01e-2; the NRHO's apolune frames (rows 0 and 712) from -4.8e-5

@@ -428,6 +428,27 @@ pub struct CachedReference {
     pub reused: bool,
 }
 
+impl CachedReference {
+    /// From a cache file's head (five values, or the three written before the signed
+    /// estimate, whose bound then stands for it) and its image.
+    fn of(head: &[f64], pl: Vec<f64>, reused: bool) -> CachedReference {
+        let signed = if head.len() == 5 {
+            [head[3], head[4]]
+        } else {
+            [head[1], head[2]]
+        };
+        CachedReference {
+            pl,
+            seconds: head[0],
+            bound_total: head[1],
+            bound_p99: head[2],
+            signed_total: signed[0],
+            signed_p99: signed[1],
+            reused,
+        }
+    }
+}
+
 /// The reference of `scene` from `pose` by `method`, from the cache in `dir` (keyed by the
 /// SHA-256 of `text`, the scene file's text, the pose, and the cubature's settings and
 /// [`REFERENCE_MODEL`] or the exact reference's [`EXACT_MODEL`]) or rendered and cached.
@@ -476,20 +497,7 @@ pub fn cached_reference(
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
             .collect();
-        let signed = if head == 5 {
-            [v[3], v[4]]
-        } else {
-            [v[1], v[2]]
-        };
-        return Ok(CachedReference {
-            pl: v[head..].to_vec(),
-            seconds: v[0],
-            bound_total: v[1],
-            bound_p99: v[2],
-            signed_total: signed[0],
-            signed_p99: signed[1],
-            reused: true,
-        });
+        return Ok(CachedReference::of(&v[..head], v[head..].to_vec(), true));
     }
     let r = reference::render_by(scene, p, settings, method)?;
     let head = [
@@ -506,15 +514,7 @@ pub fn cached_reference(
         .flat_map(|x| x.to_le_bytes())
         .collect();
     std::fs::write(&file, bytes).map_err(|e| bad(&file, e))?;
-    Ok(CachedReference {
-        pl: r.frame.pl,
-        seconds: head[0],
-        bound_total: head[1],
-        bound_p99: head[2],
-        signed_total: head[3],
-        signed_p99: head[4],
-        reused: false,
-    })
+    Ok(CachedReference::of(&head, r.frame.pl, false))
 }
 
 /// Marks the rows of one scene that are on its Pareto front (time and every error figure).

@@ -233,9 +233,22 @@ fn corners_disagree(tracer: &Tracer, c: &Cell, lit: bool) -> bool {
         .any(|&(a, b)| (tracer.cast(c.u + a * c.side, c.v + b * c.side).pl_per_px2 > 0.0) != lit)
 }
 
-/// One pixel, adaptively: `(value, error bound, rays, cells, unconverged cells, signed
-/// error estimate)` (the sums over its cells of `|G3 - G2|` and of `G3 - G2`).
-/// `near_edge`: the pixel or a neighbour straddles the silhouette or the edge of the light, so
+/// One pixel's integral and what its cells say of it ([`pixel`]).
+#[derive(Clone, Copy, Default)]
+struct PixelSum {
+    /// The sum of the accepted cells' `G3` [sr m^2].
+    value: f64,
+    /// The sum of their `|G3 - G2|`: the pixel's error bound [sr m^2].
+    bound: f64,
+    /// The sum of their `G3 - G2`: the estimate with the signs kept [sr m^2].
+    signed: f64,
+    rays: u64,
+    cells: u64,
+    /// Cells accepted above their tolerance (at the deepest level or out of cells).
+    unconverged: u64,
+}
+
+/// One pixel, adaptively. `near_edge`: the pixel or a neighbour straddles the silhouette or the edge of the light, so
 /// its cells are all cut `near_depth` times before any is accepted.
 #[allow(clippy::too_many_arguments)]
 fn pixel(
@@ -246,7 +259,7 @@ fn pixel(
     tau: f64,
     near_edge: bool,
     stack: &mut Vec<Cell>,
-) -> (f64, f64, u64, u64, u64, f64) {
+) -> PixelSum {
     stack.clear();
     stack.push(Cell {
         u: i as f64,
@@ -254,14 +267,13 @@ fn pixel(
         side: 1.0,
         depth: 0,
     });
-    let (mut value, mut err, mut rays, mut cells, mut bad) = (0.0, 0.0, 0u64, 0u64, 0u64);
-    let mut signed = 0.0;
+    let mut sum = PixelSum::default();
     while let Some(c) = stack.pop() {
         let coverage = tracer.coverage(c.u, c.v, c.side);
         if coverage == Coverage::Empty {
             continue;
         }
-        rays += 13;
+        sum.rays += 13;
         let (g2, g3, _, hits, lit) = rules(tracer, &c);
         // A cell that may straddle the silhouette is not trusted where the silhouette test is
         // tight (elsewhere, in the band between a DEM's lowest and highest spheres, only a cell
@@ -283,18 +295,18 @@ fn pixel(
         // loses its terminator side there (3e-3 of an edge pixel's light at 161 deg). Its
         // corners, where a straight edge crossing the cell shows first, are asked too.
         if !must_cut && near_edge && c.depth < s.corner_depth && (lit == 0 || lit == 13) {
-            rays += 4;
+            sum.rays += 4;
             must_cut = corners_disagree(tracer, &c, lit == 13);
         }
         let e = (g3 - g2).abs();
-        let exhausted = cells + stack.len() as u64 >= s.max_cells_per_px;
+        let exhausted = sum.cells + stack.len() as u64 >= s.max_cells_per_px;
         if exhausted || (!must_cut && (e <= tau * c.side || c.depth >= s.max_depth)) {
-            value += g3;
-            err += e;
-            signed += g3 - g2;
-            cells += 1;
+            sum.value += g3;
+            sum.bound += e;
+            sum.signed += g3 - g2;
+            sum.cells += 1;
             if e > tau * c.side {
-                bad += 1;
+                sum.unconverged += 1;
             }
             continue;
         }
@@ -309,7 +321,7 @@ fn pixel(
             });
         }
     }
-    (value, err, rays, cells, bad, signed)
+    sum
 }
 
 /// Renders the converged reference of `scene` seen from `pose`.
@@ -397,7 +409,7 @@ fn render_camera(
         1e-3 * crate::stats::quantiles(&mut lit, [0.99])[0]
     };
 
-    let results: Vec<(f64, f64, u64, u64, u64, f64)> = pool.install(|| {
+    let results: Vec<PixelSum> = pool.install(|| {
         (0..w * h)
             .into_par_iter()
             .map_init(Vec::new, |stack, p| {
@@ -406,8 +418,8 @@ fn render_camera(
             })
             .collect()
     });
-    let pl: Vec<f64> = results.iter().map(|r| r.0).collect();
-    let error_pl: Vec<f64> = results.iter().map(|r| r.1).collect();
+    let pl: Vec<f64> = results.iter().map(|r| r.value).collect();
+    let error_pl: Vec<f64> = results.iter().map(|r| r.bound).collect();
     let total: f64 = pl.iter().sum();
     if !total.is_finite() {
         return Err(RenderError::NonFinite {
@@ -416,16 +428,16 @@ fn render_camera(
         });
     }
     let [median, p99, max] = relative_quantiles(&pl, &error_pl, floor);
-    let signed_pl: Vec<f64> = results.iter().map(|r| r.5.abs()).collect();
+    let signed_pl: Vec<f64> = results.iter().map(|r| r.signed.abs()).collect();
     let [_, signed_p99, _] = relative_quantiles(&pl, &signed_pl, floor);
     let seconds = t0.elapsed().as_secs_f64();
     let report = ReferenceReport {
         method: "cubature",
         settings: Some(*settings),
-        rays: results.iter().map(|r| r.2).sum::<u64>() + 9 * (w * h) as u64,
-        cells: results.iter().map(|r| r.3).sum(),
-        unconverged_cells: results.iter().map(|r| r.4).sum(),
-        unconverged_px: results.iter().filter(|r| r.4 > 0).count() as u64,
+        rays: results.iter().map(|r| r.rays).sum::<u64>() + 9 * (w * h) as u64,
+        cells: results.iter().map(|r| r.cells).sum(),
+        unconverged_cells: results.iter().map(|r| r.unconverged).sum(),
+        unconverged_px: results.iter().filter(|r| r.unconverged > 0).count() as u64,
         est_error_total: if total > 0.0 {
             error_pl.iter().sum::<f64>() / total
         } else {
@@ -435,7 +447,7 @@ fn render_camera(
         est_error_p99: p99,
         est_error_max: max,
         signed_error_total: if total > 0.0 {
-            results.iter().map(|r| r.5).sum::<f64>().abs() / total
+            results.iter().map(|r| r.signed).sum::<f64>().abs() / total
         } else {
             0.0
         },

@@ -38,11 +38,11 @@
 //! [`TOLERANCE_TEXELS`] (of a texel, or of the footprint where that is larger; under the
 //! relief's shadows, of the footprint: [`Step::tolerance_texels`]) has its reads'
 //! longitude and latitude interpolated. A block that fails is split in four, down to single
-//! pixels, interpolated from the lines of sight through their own and their neighbours'
-//! centres. A single pixel whose neighbours' lines of sight miss the body (the limb), or
-//! whose interpolation is off by a fiftieth of its footprint (near the limb, where the
-//! surface a pixel sees stretches to `sqrt(2 R footprint)` and maps to the image like a
-//! square root, or at a pole), casts its reads instead ([`CAST`] x [`CAST`] lines of sight,
+//! pixels, interpolated from the lines of sight through their own four corners
+//! ([`Step::own_corners`]). A single pixel whose neighbours' or corners' lines of sight
+//! miss the body (the limb), or whose interpolation is off by a fiftieth of its footprint
+//! (near the limb, where the surface a pixel sees stretches to `sqrt(2 R footprint)` and
+//! maps to the image like a square root, or at a pole), casts its reads instead ([`CAST`] x [`CAST`] lines of sight,
 //! each weighted by its own `f_r mu0`, 0 where it misses). Interpolating them there, or one
 //! read at the footprint's level, put the lunar limb's last pixels 2.8 % low on the textured
 //! Hapke Moon at 71,000 km, and its total 2e-4 low. Those pixels (about 2,000 there) and
@@ -932,6 +932,56 @@ impl Step<'_> {
         band.place_edges(shading, (lw, lh));
     }
 
+    /// A single pixel's longitudes, latitudes and `mu0` as [`Step::block`] interpolates them
+    /// (at the pixel's centre and its right, lower and diagonal neighbours' centres), taken
+    /// from the lines of sight through the pixel's own corners (`(u, v)` its top-left one
+    /// [px]): the bilinear function through those, re-expressed at the neighbours' centres.
+    /// `None` where a corner's line of sight misses the body, or where the bilinear
+    /// function misses the pixel's centre by what `off` says (then the pixel's reads are
+    /// cast). A single pixel's block runs from its centre to its neighbours', so its reads
+    /// on the pixel's left and upper halves were extrapolated half a pixel beyond the block;
+    /// within a few pixels of the limb, where the image maps onto the surface like a square
+    /// root, that squeezed the reads towards the pixel's centre. On Artemis I's row 960
+    /// (8,786 km, 146 deg) the second pixel from the limb read the surface from 85.70 to
+    /// 84.91 deg W where its lines of sight meet it from 85.80 to 84.89 deg W: the ridge
+    /// top that the camera sees in its first sixteenth was never read, and a pixel the
+    /// reference has at 8 % of the frame's 99th percentile was 0.
+    fn own_corners(
+        &self,
+        u: f64,
+        v: f64,
+        band: &Band,
+        off: impl Fn(f64) -> bool,
+    ) -> Option<([f64; 4], [f64; 4], [f64; 4])> {
+        let corners = [
+            self.probe(u, v),
+            self.probe(u + 1.0, v),
+            self.probe(u, v + 1.0),
+            self.probe(u + 1.0, v + 1.0),
+        ];
+        if !corners.iter().all(|p| p.hit) {
+            return None;
+        }
+        let lon = corners.map(|p| corners[0].lon + wrapped(p.lon - corners[0].lon));
+        let lat = corners.map(|p| p.lat);
+        let centre = self.probe(u + 0.5, v + 0.5);
+        let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
+            .abs()
+            .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());
+        if off(miss) {
+            return None;
+        }
+        // The same bilinear function at the block's corners, half a pixel on.
+        let at_centres = |q: [f64; 4]| {
+            [(0.5, 0.5), (1.5, 0.5), (0.5, 1.5), (1.5, 1.5)].map(|(s, t)| lerp(q, s, t))
+        };
+        Some((
+            at_centres(lon),
+            at_centres(lat),
+            at_centres(corners.map(|p| p.local.mu0)),
+        ))
+    }
+
     /// Scales the pixels of the block of `size` px whose top-left pixel is `(x0, y0)` (band
     /// rows), from the lines of sight through its corners' pixel centres (`c`: top-left,
     /// top-right, bottom-left, bottom-right) and its centre (cast here, once the block is
@@ -1000,8 +1050,13 @@ impl Step<'_> {
         // centre and its neighbours' (its reads integrate it, where one read would stand for
         // the whole footprint), unless one of them misses the body or the interpolation is
         // off by a fiftieth of the footprint: then its reads are cast.
-        let far_off = !smooth && miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0);
-        if size == 1 && (!hits || far_off) {
+        let off = |miss: f64| miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0);
+        let far_off = !smooth && off(miss);
+        // A pixel that passes is placed from the lines of sight through its own corners
+        // instead ([`Step::own_corners`]), and cast where even those miss.
+        let placed = (size == 1 && hits && !far_off)
+            .then(|| self.own_corners(fx - 0.5, fy - 0.5, band, off));
+        if size == 1 && (!hits || far_off || placed.is_some_and(|p| p.is_none())) {
             let (i, r) = (x0, y0);
             let v = (band.y0 + r) as f64 + 0.5;
             if band.pixels.iter().any(|img| img[r * w + i] != 0.0) || c.iter().any(day) {
@@ -1046,6 +1101,7 @@ impl Step<'_> {
             c[2].local.mu0,
             c[3].local.mu0,
         ];
+        let (lon, lat, mu0) = placed.flatten().unwrap_or((lon, lat, mu0));
         // How much `mu0` changes across a pixel of the block (at most).
         let mu0_per_px = (mu0.iter().fold(f64::MIN, |a, &b| a.max(b))
             - mu0.iter().fold(f64::MAX, |a, &b| a.min(b)))

@@ -129,9 +129,16 @@ pub struct Row {
     /// On the scene's Pareto front: no other setting is as fast and as accurate on every
     /// figure, and better on one.
     pub front: bool,
-    /// The reference's own estimated error: total, and p99 per lit pixel.
+    /// The reference's own error bound: total, and p99 per lit pixel.
     pub ref_est_total: f64,
     pub ref_est_p99: f64,
+    /// The reference's estimate with its cells' signs kept
+    /// ([`CachedReference::signed_total`]): what `verify-budget` judges a figure by. NaN in
+    /// the CSVs written before the columns existed.
+    #[serde(default = "nan")]
+    pub ref_signed_total: f64,
+    #[serde(default = "nan")]
+    pub ref_signed_p99: f64,
     /// Why the setting could not render this scene (then the figures are NaN).
     pub failure: String,
     /// Quadrangles per pixel (NaN for a fixed count), and whether the setting is that rung of
@@ -716,6 +723,8 @@ pub fn run(
                 front: false,
                 ref_est_total: ref_total,
                 ref_est_p99: ref_p99,
+                ref_signed_total: signed_total,
+                ref_signed_p99: signed_p99,
                 failure,
             };
             progress(&format!(

@@ -872,8 +872,12 @@ fn pixels_a_shadows_edge_crosses_are_read_again() {
 
 /// A flat DEM read over each pixel (`map_filter = "relief"`) against the frame without it
 /// (the quadrangles' closed form, the map read over each pixel) and the converged
-/// reference, at 60 and 110 deg of phase. Inside the disk the two renders are one (to 3e-5
-/// at the median pixel): the pixels near the terminator, taken from their reads alone
+/// reference, at 60 and 110 deg of phase. Inside the disk the two renders differ only where
+/// the pixels are read: where the blocks of pixels split to single ones (most of this small
+/// disk), the relief's reads lie where their own lines of sight meet the surface, the map's
+/// are interpolated from the pixel's corners (5.6e-4 and 1.8e-3 apart at the median pixel;
+/// 3e-5 when both were interpolated), and against the reference the relief's are the closer
+/// (median 2.9e-3 and 4.2e-3 against 3.4e-3 and 7.1e-3). The pixels near the terminator, taken from their reads alone
 /// (`A_sun A_cam cos(eps) Omega / d_sun^2` times their mean light), are checked against the
 /// reference, where they are better than the quadrangles' gridding: p99 0.34 and 0.21
 /// against 1.28 and 1.91. Their 2 x 2 reads leave totals of 7.3e-4 and 4.1e-4 (the
@@ -913,7 +917,7 @@ fn a_flat_relief_read_over_each_pixel_is_the_frame_without_it() {
         eprintln!(
             "phase {phase:.0} deg\nrelief against pixel: {same:?}\nrelief: {relief:?}\npixel: {pixel:?}"
         );
-        assert!(same.median < 1e-4, "{same:?}");
+        assert!(same.median < 2.5e-3, "{same:?}");
         assert!(relief.p99 < 0.5 * pixel.p99, "{relief:?} {pixel:?}");
         assert!(relief.median <= pixel.median, "{relief:?} {pixel:?}");
         assert!(relief.total.abs() < 1e-3, "{relief:?}");
@@ -969,7 +973,9 @@ fn the_relief_per_pixel_is_refused_where_it_does_not_apply() {
         .unwrap();
     // Its quadrangles integrate the smooth shape, so the Lambert sphere's closed form
     // (`integration = "exact"`) applies under `relief`, and not under `pixel`, whose
-    // quadrangles carry the DEM's normals. On a flat DEM it is the frame without one.
+    // quadrangles carry the DEM's normals. On a flat DEM it is the frame without one, to
+    // where the two read the map: the relief's single pixels where their lines of sight
+    // meet the surface, the map's interpolated (3e-6 of the total apart).
     undisplaced.settings.integration = optistim::render::Integration::Exact;
     let flat = renderer
         .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)
@@ -981,7 +987,7 @@ fn the_relief_per_pixel_is_refused_where_it_does_not_apply() {
         .render(&without.scene, &without.pose, &without.settings)
         .unwrap();
     let (a, b) = (flat.pl.iter().sum::<f64>(), smooth.pl.iter().sum::<f64>());
-    assert!(b > 0.0 && ((a - b) / b).abs() < 1e-6, "{a} {b}");
+    assert!(b > 0.0 && ((a - b) / b).abs() < 1e-5, "{a} {b}");
     undisplaced.settings.map_filter = optistim::render::MapFilter::Pixel;
     let e = renderer
         .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)

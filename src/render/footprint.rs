@@ -891,7 +891,7 @@ impl Step<'_> {
         shading: (&Relief, SelfShadowing),
         (x0, y0): (usize, usize),
         (x1, y1): (usize, usize),
-        (lon, lat): ([f64; 4], [f64; 4]),
+        place: &Placement,
         (ns, nt): (usize, usize),
         n: f64,
         mu0_per_px: f64,
@@ -915,7 +915,7 @@ impl Step<'_> {
                 let s = pc as f64 / n;
                 let (du, dv) = band.offsets[b * ns + a];
                 let (u, v) = (s + du, t + dv);
-                let at = (lerp(lon, u, v), lerp(lat, u, v));
+                let at = place.at(self, u, v);
                 // A read of the ring (outside the block) is taken as over a dark pixel.
                 let dark = match (usize::try_from(pc), usize::try_from(pr)) {
                     (Ok(c), Ok(r)) if x0 + c < x1 && y0 + r < y1 => band
@@ -930,6 +930,15 @@ impl Step<'_> {
             }
         }
         band.place_edges(shading, (lw, lh));
+    }
+
+    /// Where the line of sight through image point `(u, v)` [px] meets the shape: its
+    /// longitude and latitude [rad]; `None` where it misses.
+    fn sight(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        let cam = self.pose.camera_position_m;
+        let dir = super::depth::line_of_sight(self.intrinsics, self.pose, u, v);
+        let (t, _) = self.shape.intersect_normal(cam, dir)?;
+        Some(crate::geometry::lon_lat_unit((cam + dir * t).normalize()))
     }
 
     /// A single pixel's longitudes, latitudes and `mu0` as [`Step::block`] interpolates them
@@ -1102,6 +1111,17 @@ impl Step<'_> {
             c[3].local.mu0,
         ];
         let (lon, lat, mu0) = placed.flatten().unwrap_or((lon, lat, mu0));
+        // Under the relief a single pixel's reads are each placed by their own line of sight
+        // ([`Placement`]): the corners' bilinear function, though checked at the pixel's
+        // centre, still bent the reads of a pixel near the limb. (A relief read's shadow
+        // rays cost ten times its line of sight; a map read alone is cheaper than one, and
+        // the map's reads stay interpolated: on the NRHO's far frames under the planner's
+        // `pixel` rungs, 1.3 times the frame.)
+        let place = Placement {
+            lon,
+            lat,
+            sight: (size == 1 && self.shading.is_some()).then_some((fx, fy, 1.0)),
+        };
         // How much `mu0` changes across a pixel of the block (at most).
         let mu0_per_px = (mu0.iter().fold(f64::MIN, |a, &b| a.max(b))
             - mu0.iter().fold(f64::MAX, |a, &b| a.min(b)))
@@ -1152,7 +1172,7 @@ impl Step<'_> {
                             shading,
                             (x0, y0),
                             (x1, y1),
-                            (lon, lat),
+                            &place,
                             (ns, nt),
                             n,
                             mu0_per_px,
@@ -1230,8 +1250,7 @@ impl Step<'_> {
         {
             let geometry = BlockGeometry {
                 origin: (x0, y0),
-                lon,
-                lat,
+                place,
                 reads: (ns, nt),
                 n,
                 read_rad,
@@ -1283,7 +1302,7 @@ impl Step<'_> {
                     let t = ti + ((jy as f64 - 0.5) / mt as f64 - 0.5) / g.n;
                     for jx in 0..ls {
                         let s = si + ((jx as f64 - 0.5) / ms as f64 - 0.5) / g.n;
-                        let at = (lerp(g.lon, s, t), lerp(g.lat, s, t));
+                        let at = g.place.at(self, s, t);
                         // The first level marches every read (a shadow thinner than the
                         // block's spacing is found there), the finer ones inherit from the
                         // level before.
@@ -1398,11 +1417,38 @@ fn mixed(
 /// ([`Step::refine`]).
 struct BlockGeometry {
     origin: (usize, usize),
-    lon: [f64; 4],
-    lat: [f64; 4],
+    place: Placement,
     reads: (usize, usize),
     n: f64,
     read_rad: f64,
+}
+
+/// Where a block's reads lie on the map, at block coordinates `(s, t)` (0 at the top-left
+/// pixel's centre, 1 a block's side on): bilinear in the longitudes and latitudes at the
+/// block's corners, or, for a single pixel under the relief (`sight`: the image point of
+/// `(0, 0)` and the block's side [px]), where each read's own line of sight meets the
+/// shape ([`Step::sight`]; the bilinear place where it misses, a ring's read beyond the
+/// limb).
+#[derive(Clone, Copy)]
+struct Placement {
+    lon: [f64; 4],
+    lat: [f64; 4],
+    sight: Option<(f64, f64, f64)>,
+}
+
+impl Placement {
+    fn at(&self, step: &Step, s: f64, t: f64) -> (f64, f64) {
+        let lon = lerp(self.lon, s, t);
+        let lat = lerp(self.lat, s, t);
+        match self
+            .sight
+            .and_then(|(u, v, n)| step.sight(u + s * n, v + t * n))
+        {
+            // Unwrapped about the bilinear longitude, as the lattice's neighbours are.
+            Some((l, b)) => (lon + wrapped(l - lon), b),
+            None => (lon, lat),
+        }
+    }
 }
 
 /// `first` where it is lit and seen, else the most lit and visible of `others` (by

@@ -877,11 +877,11 @@ fn pixels_a_shadows_edge_crosses_are_read_again() {
 /// disk), the relief's reads lie where their own lines of sight meet the surface, the map's
 /// are interpolated from the pixel's corners (5.6e-4 and 1.8e-3 apart at the median pixel;
 /// 3e-5 when both were interpolated), and against the reference the relief's are the closer
-/// (median 2.9e-3 and 4.2e-3 against 3.4e-3 and 7.1e-3). The pixels near the terminator, taken from their reads alone
-/// (`A_sun A_cam cos(eps) Omega / d_sun^2` times their mean light), are checked against the
-/// reference, where they are better than the quadrangles' gridding: p99 0.34 and 0.21
-/// against 1.28 and 1.91. Their 2 x 2 reads leave totals of 7.3e-4 and 4.1e-4 (the
-/// quadrangles' 7.4e-5 and 2.1e-4).
+/// (median 2.9e-3 and 4.2e-3 against 3.4e-3 and 7.1e-3). The pixels near the terminator,
+/// taken from their reads alone (`A_sun A_cam cos(eps) Omega / d_sun^2` times their mean
+/// light), are checked against the reference, where they are better than the quadrangles'
+/// gridding: p99 0.34 and 0.21 against 1.28 and 1.91. Their 2 x 2 reads leave totals of
+/// 7.8e-4 and 4.0e-4 (the quadrangles' 9.0e-5 and 1.6e-4).
 #[test]
 fn a_flat_relief_read_over_each_pixel_is_the_frame_without_it() {
     use optistim::fidelity::metrics::frame_error;

@@ -39,15 +39,16 @@
 //! relief's shadows, of the footprint: [`Step::tolerance_texels`]) has its reads'
 //! longitude and latitude interpolated. A block that fails is split in four, down to single
 //! pixels, interpolated from the lines of sight through their own four corners
-//! ([`Step::own_corners`]). A single pixel whose neighbours' or corners' lines of sight
-//! miss the body (the limb), or whose interpolation is off by a fiftieth of its footprint
-//! (near the limb, where the surface a pixel sees stretches to `sqrt(2 R footprint)` and
-//! maps to the image like a square root, or at a pole), casts its reads instead ([`CAST`] x [`CAST`] lines of sight,
-//! each weighted by its own `f_r mu0`, 0 where it misses). Interpolating them there, or one
-//! read at the footprint's level, put the lunar limb's last pixels 2.8 % low on the textured
-//! Hapke Moon at 71,000 km, and its total 2e-4 low. Those pixels (about 2,000 there) and
-//! the second Hapke evaluation of every single pixel cost the NRHO's far frames 13-15 ms
-//! (`docs/performance.md`).
+//! ([`Step::own_corners`]; under the relief, each read of a single pixel where its own line
+//! of sight meets the shape, [`Placement`]). A single pixel whose neighbours' or corners'
+//! lines of sight miss the body (the limb), or whose interpolation is off by a fiftieth of
+//! its footprint (near the limb, where the surface a pixel sees stretches to
+//! `sqrt(2 R footprint)` and maps to the image like a square root, or at a pole), casts its
+//! reads instead ([`CAST`] x [`CAST`] lines of sight, each weighted by its own `f_r mu0`, 0
+//! where it misses). Interpolating them there, or one read at the footprint's level, put the
+//! lunar limb's last pixels 2.8 % low on the textured Hapke Moon at 71,000 km, and its total
+//! 2e-4 low. Those pixels (about 2,000 there) and the second Hapke evaluation of every single
+//! pixel cost the NRHO's far frames 13-15 ms (`docs/performance.md`).
 //!
 //! Hapke's ratio, which depends on the geometry weakly (a ratio of two BRDFs at the same
 //! angles), is tabulated per block over the map's range of `w` at the angles of the block's
@@ -1055,10 +1056,10 @@ impl Step<'_> {
             }
             return;
         }
-        // A pixel (a block of 1) is interpolated still, from the lines of sight through its
-        // centre and its neighbours' (its reads integrate it, where one read would stand for
-        // the whole footprint), unless one of them misses the body or the interpolation is
-        // off by a fiftieth of the footprint: then its reads are cast.
+        // A pixel (a block of 1) is interpolated still (its reads integrate it, where one read
+        // would stand for the whole footprint), unless a line of sight through its or its
+        // neighbours' centres misses the body or the interpolation is off by a fiftieth of
+        // the footprint: then its reads are cast.
         let off = |miss: f64| miss >= 2.0 * tolerance.max(TOLERANCE_TEXELS * 10.0);
         let far_off = !smooth && off(miss);
         // A pixel that passes is placed from the lines of sight through its own corners

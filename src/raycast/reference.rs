@@ -248,8 +248,8 @@ struct PixelSum {
     unconverged: u64,
 }
 
-/// One pixel, adaptively. `near_edge`: the pixel or a neighbour straddles the silhouette or the edge of the light, so
-/// its cells are all cut `near_depth` times before any is accepted.
+/// One pixel, adaptively. `near_edge`: the pixel or a neighbour straddles the silhouette or
+/// the edge of the light, so its cells are all cut `near_depth` times before any is accepted.
 #[allow(clippy::too_many_arguments)]
 fn pixel(
     tracer: &Tracer,

@@ -754,6 +754,18 @@ impl Step<'_> {
     }
 }
 
+/// The map coordinates [rad] at four probes (top-left, top-right, bottom-left, bottom-right;
+/// longitudes unwrapped about the first's) and how far their bilinear function at `(0.5,
+/// 0.5)` is from `centre`'s [texels, the larger of the two axes].
+fn corner_map(c: &[Probe; 4], centre: &Probe, band: &Band) -> ([f64; 4], [f64; 4], f64) {
+    let lon = c.map(|p| c[0].lon + wrapped(p.lon - c[0].lon));
+    let lat = c.map(|p| p.lat);
+    let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
+        .abs()
+        .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());
+    (lon, lat, miss)
+}
+
 /// `b - a` brought into (-pi, pi].
 fn wrapped(d: f64) -> f64 {
     use std::f64::consts::{PI, TAU};
@@ -972,12 +984,7 @@ impl Step<'_> {
         if !corners.iter().all(|p| p.hit) {
             return None;
         }
-        let lon = corners.map(|p| corners[0].lon + wrapped(p.lon - corners[0].lon));
-        let lat = corners.map(|p| p.lat);
-        let centre = self.probe(u + 0.5, v + 0.5);
-        let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
-            .abs()
-            .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());
+        let (lon, lat, miss) = corner_map(&corners, &self.probe(u + 0.5, v + 0.5), band);
         if off(miss) {
             return None;
         }
@@ -1018,23 +1025,13 @@ impl Step<'_> {
         let fx = x0 as f64 + 0.5;
         let half = 0.5 * size as f64;
         let centre = self.probe(fx + half, fy + half);
-        // Longitudes unwrapped about the first corner's.
-        let lon = [
-            c[0].lon,
-            c[0].lon + wrapped(c[1].lon - c[0].lon),
-            c[0].lon + wrapped(c[2].lon - c[0].lon),
-            c[0].lon + wrapped(c[3].lon - c[0].lon),
-        ];
-        let lat = [c[0].lat, c[1].lat, c[2].lat, c[3].lat];
+        let (lon, lat, miss) = corner_map(&c, &centre, band);
         // The tolerance grows with the pixel's footprint beyond a texel: a shift of the
         // footprint changes its mean by the shift's share of the footprint. Under the
         // relief's shadows, their edges placed across the blocks, it is the footprint's
         // however fine: a shadow's edge is sharp within a texel, and a pixel it crosses
         // changes by the shift's share of the pixel.
         let tolerance = self.tolerance_texels(centre.footprint_rad / band.dlat);
-        let miss = (wrapped(lerp(lon, 0.5, 0.5) - centre.lon) / band.dlon)
-            .abs()
-            .max(((lerp(lat, 0.5, 0.5) - centre.lat) / band.dlat).abs());
         let hits = c.iter().chain([&centre]).all(|c| c.hit);
         let smooth = hits && miss < tolerance;
         if !smooth && size > 1 {

@@ -514,15 +514,18 @@ fn run() -> anyhow::Result<()> {
             out!("{}", serde_json::to_string(&report)?);
         }
         Command::FitModel { csv, out } => {
-            let m = app::sweep::fit_csv(&csv)?;
+            let (m, rows) = app::sweep::fit_csv(&csv)?;
             let names: Vec<String> = csv.iter().map(|c| c.display().to_string()).collect();
             let how = format!(
                 "optistim fit-model {} --out {}",
                 names.join(" "),
                 out.display()
             );
-            std::fs::write(&out, app::sweep::model_text(&m, &how))
-                .with_context(|| format!("{}", out.display()))?;
+            std::fs::write(
+                &out,
+                app::sweep::model_text(&m, &how, &app::sweep::margins_set_by(&m, &rows)),
+            )
+            .with_context(|| format!("{}", out.display()))?;
             out!("{}", serde_json::to_string(&m)?);
         }
         Command::Compare {

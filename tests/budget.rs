@@ -434,7 +434,8 @@ fn a_frame_that_reads_a_dem_is_planned_by_the_models_relief_term() {
         "docs/performance/budget_sweep.csv",
         "docs/performance/budget_hapke_sweep.csv",
     ])
-    .unwrap();
+    .unwrap()
+    .0;
     assert!(!plain.fitted_on_relief());
     let unfitted = planner(plain).plan(&cfg.scene, nearest);
     assert!(!unfitted.meets_budget);
@@ -658,4 +659,44 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
     let (r, _) = run(&finer, 3, Some(&[5]), &dir.join("rows"));
     let e = r.expect_err("row 5 of 5").to_string();
     assert!(e.contains("row 5") && e.contains("5 rows"), "{e}");
+}
+
+/// The model file names the sweep frame that sets each margin: the one whose measured error
+/// equals the model's prediction, with no fitted frame above its prediction.
+#[test]
+fn the_model_names_the_frames_that_set_its_margins() {
+    use optistim::app::sweep::{fit_csv, margins_set_by, model_text};
+    let files = [
+        "docs/performance/budget_sweep.csv",
+        "docs/performance/budget_hapke_sweep.csv",
+        "docs/performance/budget_dem_model6_sweep.csv",
+    ];
+    let (model, rows) = fit_csv(&files).unwrap();
+    let set_by = margins_set_by(&model, &rows);
+    // Three figures, each with its plain and its relief margin.
+    assert_eq!(set_by.len(), 6, "{set_by:?}");
+    for s in &set_by {
+        assert!((s.share - 1.0).abs() < 1e-9, "{s:?}");
+        let figure = match s.figure {
+            "median" => &model.median,
+            "p99" => &model.p99,
+            _ => &model.total,
+        };
+        let margin = if s.relief {
+            figure.relief_margin.unwrap()
+        } else {
+            figure.margin
+        };
+        assert_eq!(s.margin, margin);
+        let row = rows
+            .iter()
+            .find(|r| r.scene == s.scene && r.setting == s.setting)
+            .unwrap();
+        assert_eq!(row.f_relief > 0.0, s.relief, "{s:?}");
+    }
+    let text = model_text(&model, "test", &set_by);
+    assert!(text.contains(&format!("#   {}\n", set_by[0])), "{text}");
+    // The text parses back to the same model.
+    let back = optistim::fidelity::budget::ErrorModel::parse(&text, "test").unwrap();
+    assert_eq!(back, model);
 }

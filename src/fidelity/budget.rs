@@ -298,7 +298,29 @@ pub struct ErrorModel {
     pub total: FigureModel,
     /// Frames the fit saw.
     pub frames: usize,
+    /// How a frame that reads the relief over each pixel turns its own estimate of its reads'
+    /// p99 into a bound, per refinement ([`ErrorModel::read_scale`]); empty in a model
+    /// fitted on no such frame.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub relief_read: Vec<ReadScale>,
 }
+
+/// The largest ratio of measured p99 to the frame's own estimate of its reads' p99
+/// ([`crate::render::FrameStats::relief_read_p99`]) over the sweep's frames that read the
+/// relief over each pixel at one `relief_refine`: that estimate times `scale` bounds every
+/// such frame the model was fitted on. The estimate (each pixel's reads against a quarter
+/// of them) is far from the measured p99 both ways: 2 to 7 times above it at `k` 8 on the
+/// far NRHO frames, 3.4 times below it at `k` 1 at 130 deg of phase.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReadScale {
+    pub relief_refine: u32,
+    pub scale: f64,
+    /// The frames it was fitted on.
+    pub frames: usize,
+}
+
+/// Fewest frames at one refinement for a [`ReadScale`] of its own.
+const READ_SCALE_MIN_FRAMES: usize = 4;
 
 /// The model fitted on the sweep of `docs/performance.md` (`config/error_model.toml`).
 const DEFAULT_MODEL: &str = include_str!("../../config/error_model.toml");
@@ -345,6 +367,10 @@ pub struct Plan {
     /// (`render.relief_refine`): chosen with the rung, at least the base's; 1 elsewhere,
     /// where it changes nothing.
     pub relief_refine: u32,
+    /// The factor on the frame's own estimate of its reads' p99 at its refinement
+    /// ([`ErrorModel::read_scale`], [`Plan::observe`]).
+    #[serde(skip)]
+    pub relief_read_scale: f64,
     pub predicted: Predicted,
     /// Whether the prediction meets the budget (false: no rung is predicted to meet it; the
     /// frame is rendered at the cheapest rung that meets the figures some rung can meet and
@@ -370,16 +396,18 @@ impl Plan {
     ///
     /// A frame that read the relief over each pixel ([`MapFilter::Relief`]) knows how well
     /// its reads sampled the shadows' edges and the shading ([`FrameStats::relief_read_p99`],
-    /// from each pixel's reads against a quarter of them): its predicted p99 is that where it
-    /// is the larger (the model, fitted on frames whose pixels were not read so, sees
-    /// neither), and whether it meets the budget is judged again.
+    /// from each pixel's reads against a quarter of them): that estimate, times the factor
+    /// that makes it bound the sweep's frames at the same refinement
+    /// ([`Plan::relief_read_scale`]), is its predicted p99 where it is the larger, and
+    /// whether it meets the budget is judged again.
     ///
     /// [`FrameStats::relief_read_p99`]: crate::render::FrameStats::relief_read_p99
     pub fn observe(&mut self, stats: &crate::render::FrameStats) {
-        if let Some(p99) = stats
+        if let Some(estimate) = stats
             .relief_read_p99
             .filter(|_| self.map_filter == MapFilter::Relief)
         {
+            let p99 = estimate * self.relief_read_scale;
             if p99 > self.predicted.p99 {
                 self.predicted.p99 = p99;
                 self.meets_budget &= p99 <= self.budget.p99;
@@ -420,6 +448,8 @@ pub struct FitRow {
     pub median: f64,
     pub p99: f64,
     pub total: f64,
+    /// The frame's own estimate of its relief reads' p99 (NaN where it has none).
+    pub relief_read_p99: f64,
 }
 
 impl ErrorModel {
@@ -484,7 +514,23 @@ impl ErrorModel {
             p99: figure(|r| r.p99, "p99")?,
             total: figure(|r| r.total, "total")?,
             frames: rows.len(),
+            relief_read: fit_read_scales(&relief),
         })
+    }
+
+    /// The factor on a frame's own estimate of its reads' p99 at `relief_refine`
+    /// ([`Plan::observe`]): the [`ReadScale`] fitted at that refinement; at one the fit did
+    /// not see, the largest fitted (at least 1); 1 (the estimate as it is) in a model fitted
+    /// on none.
+    pub fn read_scale(&self, relief_refine: u32) -> f64 {
+        match self
+            .relief_read
+            .iter()
+            .find(|s| s.relief_refine == relief_refine)
+        {
+            Some(s) => s.scale,
+            None => self.relief_read.iter().map(|s| s.scale).fold(1.0, f64::max),
+        }
     }
 
     /// Whether every figure was fitted on frames with a DEM (has its relief margin).
@@ -505,6 +551,37 @@ impl ErrorModel {
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Per refinement, the factor that makes the frames' own estimates of their reads' p99 bound
+/// what they measured, over the `rows` that read the relief over each pixel
+/// ([`ReadScale`]; a refinement with fewer than [`READ_SCALE_MIN_FRAMES`] such frames gets
+/// none).
+fn fit_read_scales(rows: &[FitRow]) -> Vec<ReadScale> {
+    let mut scales: Vec<ReadScale> = Vec::new();
+    for r in rows.iter().filter(|r| {
+        r.features.relief_per_pixel > 0.0
+            && r.relief_read_p99.is_finite()
+            && r.relief_read_p99 > 0.0
+            && r.p99.is_finite()
+    }) {
+        let k = r.features.relief_refine.max(1.0) as u32;
+        let ratio = r.p99 / r.relief_read_p99;
+        match scales.iter_mut().find(|s| s.relief_refine == k) {
+            Some(s) => {
+                s.scale = s.scale.max(ratio);
+                s.frames += 1;
+            }
+            None => scales.push(ReadScale {
+                relief_refine: k,
+                scale: ratio,
+                frames: 1,
+            }),
+        }
+    }
+    scales.retain(|s| s.frames >= READ_SCALE_MIN_FRAMES);
+    scales.sort_by_key(|s| s.relief_refine);
+    scales
 }
 
 /// One figure of the model fitted on `rows`, with the margin that bounds every usable row.
@@ -1271,6 +1348,7 @@ impl Planner {
             self_shadowing: settings.self_shadowing,
             map_filter: settings.map_filter,
             relief_refine: 1,
+            relief_read_scale: 1.0,
             predicted: Predicted {
                 median: f64::NAN,
                 p99: f64::NAN,
@@ -1518,6 +1596,7 @@ impl Planner {
             } else {
                 1
             },
+            relief_read_scale: self.model.read_scale(settings.relief_refine),
             predicted: chosen.predicted,
             meets_budget: meets,
             outside_model: outside,
@@ -1561,6 +1640,7 @@ mod tests {
             median,
             p99: 10.0 * median,
             total: 0.1 * median,
+            relief_read_p99: f64::NAN,
         }
     }
 
@@ -1592,6 +1672,7 @@ mod tests {
             p99: two(1.0),
             total: two(1e-4),
             frames: 0,
+            relief_read: Vec::new(),
         };
         let mut rows = Vec::new();
         for &t in &[0.0, 0.01, 0.1] {
@@ -1756,6 +1837,7 @@ mod tests {
             self_shadowing: SelfShadowing::RayMarching,
             map_filter,
             relief_refine: 1,
+            relief_read_scale: 1.0,
             predicted: Predicted {
                 median: 5e-4,
                 p99: 1e-2,
@@ -1779,6 +1861,76 @@ mod tests {
         assert_eq!(observed(MapFilter::Relief, 2e-2), (2e-2, true));
         assert_eq!(observed(MapFilter::Relief, 1e-3), (1e-2, true));
         assert_eq!(observed(MapFilter::Pixel, 0.2), (1e-2, true));
+        // Scaled by the model's factor at its refinement.
+        let mut p = plan(MapFilter::Relief);
+        p.relief_read_scale = 0.25;
+        p.observe(&crate::render::FrameStats {
+            relief_read_p99: Some(0.1),
+            ..Default::default()
+        });
+        assert_eq!((p.predicted.p99, p.meets_budget), (0.025, true));
+    }
+
+    /// Per refinement, the factor on the frames' own p99 estimates is the largest ratio of
+    /// measured to estimated over the fitted frames that read the relief per pixel (those
+    /// that do not, or have no estimate, do not count); a refinement with too few frames
+    /// has none and takes the largest fitted, at least 1.
+    #[test]
+    fn the_reads_estimate_is_scaled_to_bound_the_fitted_frames() {
+        let read = |k: f64, p99: f64, estimate: f64| FitRow {
+            points_per_px: 1.0,
+            features: Features {
+                relief: 1.0,
+                relief_per_pixel: 1.0,
+                relief_refine: k,
+                ..Default::default()
+            },
+            median: 1e-4,
+            p99,
+            total: 1e-5,
+            relief_read_p99: estimate,
+        };
+        let mut rows: Vec<FitRow> = [0.25, 0.5, 1.0, 2.0]
+            .iter()
+            .map(|&e| read(8.0, 0.0625, e))
+            .collect();
+        rows.extend([0.25, 0.5, 1.0].iter().map(|&e| read(2.0, 0.0625, e)));
+        rows.push(read(8.0, 0.5, f64::NAN));
+        rows.push(FitRow {
+            features: Features {
+                relief_per_pixel: 0.0,
+                ..rows[0].features
+            },
+            p99: 1.0,
+            ..rows[0]
+        });
+        let scales = fit_read_scales(&rows);
+        assert_eq!(
+            scales,
+            vec![ReadScale {
+                relief_refine: 8,
+                scale: 0.25,
+                frames: 4
+            }]
+        );
+        let model = ErrorModel {
+            relief_read: scales,
+            ..ErrorModel::shipped().unwrap()
+        };
+        assert_eq!(model.read_scale(8), 0.25);
+        assert_eq!(model.read_scale(2), 1.0);
+        let model = ErrorModel {
+            relief_read: vec![ReadScale {
+                relief_refine: 1,
+                scale: 3.0,
+                frames: 5,
+            }],
+            ..model
+        };
+        assert_eq!(model.read_scale(4), 3.0);
+        // The model file keeps them.
+        let text = model.to_toml();
+        assert_eq!(ErrorModel::parse(&text, "t").unwrap(), model);
     }
 
     #[test]

@@ -46,7 +46,9 @@ pub mod chart;
 
 use super::AppError;
 use crate::config::Config;
-use crate::fidelity::budget::{Budget, ErrorModel, Features, FitRow, FrameProbe, Planner};
+use crate::fidelity::budget::{
+    Budget, ErrorModel, Features, FigureModel, FitRow, FrameProbe, Planner,
+};
 use crate::fidelity::metrics::{FrameError, frame_error};
 use crate::raycast::reference::{self, ReferenceMethod, ReferenceSettings};
 use crate::render::{MapFilter, Renderer};
@@ -229,9 +231,11 @@ impl Row {
     }
 }
 
-/// Fits the planner's error model on the ladder rows of one or more `sweep.csv` files.
-pub fn fit_csv(csv_paths: &[impl AsRef<Path>]) -> Result<ErrorModel, AppError> {
-    fit(&read_csv(csv_paths)?)
+/// Fits the planner's error model on the ladder rows of one or more `sweep.csv` files; also
+/// returns the rows, for [`margins_set_by`].
+pub fn fit_csv(csv_paths: &[impl AsRef<Path>]) -> Result<(ErrorModel, Vec<Row>), AppError> {
+    let rows = read_csv(csv_paths)?;
+    Ok((fit(&rows)?, rows))
 }
 
 /// The rows of one or more `sweep.csv` files, in order.
@@ -247,8 +251,85 @@ pub fn read_csv(csv_paths: &[impl AsRef<Path>]) -> Result<Vec<Row>, AppError> {
     Ok(rows)
 }
 
-/// The model file's text: a header saying how it was made, then the model.
-pub fn model_text(m: &ErrorModel, how: &str) -> String {
+/// The sweep frame that sets one of the error model's margins ([`margins_set_by`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct MarginSetBy {
+    /// "median", "p99" or "total".
+    pub figure: &'static str,
+    /// The relief margin (frames with a DEM) rather than the plain one.
+    pub relief: bool,
+    pub margin: f64,
+    pub scene: String,
+    pub setting: String,
+    /// The frame's measured error, and its share of the model's prediction (1 for the frame
+    /// that sets the margin, the largest over the rows).
+    pub measured: f64,
+    pub share: f64,
+}
+
+impl std::fmt::Display for MarginSetBy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} {} {:.3}: {} / {} (measured {:.3e})",
+            self.figure,
+            if self.relief {
+                "relief_margin"
+            } else {
+                "margin"
+            },
+            self.margin,
+            self.scene,
+            self.setting,
+            self.measured
+        )
+    }
+}
+
+/// For each figure's margin (and relief margin), the sweep frame that sets it: of the rows
+/// the fit used, the one whose measured error is the largest share of the model's
+/// prediction (1, the margin being the bound on every row). The model file names them, so
+/// that a margin that grows after a sweep points at the frame to look at.
+pub fn margins_set_by(m: &ErrorModel, rows: &[Row]) -> Vec<MarginSetBy> {
+    type Figure<'a> = (&'static str, &'a FigureModel, fn(&Row) -> f64);
+    let figures: [Figure; 3] = [
+        ("median", &m.median, |r| r.err_median),
+        ("p99", &m.p99, |r| r.err_p99),
+        ("total", &m.total, |r| r.err_total),
+    ];
+    let mut set_by = Vec::new();
+    for (figure, model, get) in figures {
+        for (relief, margin) in [(false, Some(model.margin)), (true, model.relief_margin)] {
+            let Some(margin) = margin else { continue };
+            let binding = rows
+                .iter()
+                .filter(|r| r.ladder && r.failure.is_empty() && (r.f_relief > 0.0) == relief)
+                .filter(|r| get(r).is_finite() && get(r) > 0.0 && r.points_per_px > 0.0)
+                .map(|r| {
+                    let predicted = model.predict(r.points_per_px, &r.modelled_features());
+                    (get(r) / predicted, r)
+                })
+                .max_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((share, r)) = binding {
+                set_by.push(MarginSetBy {
+                    figure,
+                    relief,
+                    margin,
+                    scene: r.scene.clone(),
+                    setting: r.setting.clone(),
+                    measured: get(r),
+                    share,
+                });
+            }
+        }
+    }
+    set_by
+}
+
+/// The model file's text: a header saying how it was made and which frames set its margins
+/// ([`margins_set_by`]), then the model.
+pub fn model_text(m: &ErrorModel, how: &str, set_by: &[MarginSetBy]) -> String {
+    let set_by: String = set_by.iter().map(|l| format!("#   {l}\n")).collect();
     let kinds: String = crate::fidelity::budget::Regressors::ALL
         .iter()
         .map(|(_, formula)| format!("#   {formula}\n"))
@@ -263,7 +344,9 @@ pub fn model_text(m: &ErrorModel, how: &str) -> String {
          # share of the lit surface under its steep slopes' shadows, R its shading between pixels\n\
          # where the quadrangles carry it, P 1 where each pixel reads it, k how much more finely its\n\
          # reads may get, relief_refine: each figure's relief term and relief_margin are fitted on\n\
-         # the frames with a DEM alone).\n\n{}",
+         # the frames with a DEM alone).\n\
+         # The frames that set the margins (their measured error is the model's prediction):\n\
+         {set_by}\n{}",
         m.frames,
         m.to_toml()
     )
@@ -280,6 +363,7 @@ pub fn fit(rows: &[Row]) -> Result<ErrorModel, AppError> {
             median: r.err_median,
             p99: r.err_p99,
             total: r.err_total,
+            relief_read_p99: r.est_relief_p99,
         })
         .collect();
     ErrorModel::fit(&fit_rows).map_err(|e| AppError::Sweep(e.to_string()))
@@ -791,6 +875,7 @@ pub fn run(
             let text = model_text(
                 &m,
                 &format!("optistim sweep {} --fit {}", file.display(), path.display()),
+                &margins_set_by(&m, &rows),
             );
             std::fs::write(path, text).map_err(|e| bad(path, e))?;
             Some(m)

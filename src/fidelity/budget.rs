@@ -309,8 +309,9 @@ pub struct ErrorModel {
 /// ([`crate::render::FrameStats::relief_read_p99`]) over the sweep's frames that read the
 /// relief over each pixel at one `relief_refine`: that estimate times `scale` bounds every
 /// such frame the model was fitted on. The estimate (each pixel's reads against a quarter
-/// of them) is far from the measured p99 both ways: 2 to 7 times above it at `k` 8 on the
-/// far NRHO frames, 3.4 times below it at `k` 1 at 130 deg of phase.
+/// of them) is far from the measured p99 both ways: 4 times above it and more at `k` 2 to 8
+/// from 1 quadrangle per pixel up, 3.4 times below it at `k` 1 at 130 deg of phase
+/// (`docs/performance.md`, "The model refitted on this build's frames").
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ReadScale {
     pub relief_refine: u32,

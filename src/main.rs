@@ -521,11 +521,8 @@ fn run() -> anyhow::Result<()> {
                 names.join(" "),
                 out.display()
             );
-            std::fs::write(
-                &out,
-                app::sweep::model_text(&m, &how, &app::sweep::margins_set_by(&m, &rows)),
-            )
-            .with_context(|| format!("{}", out.display()))?;
+            std::fs::write(&out, app::sweep::model_text(&m, &how, &rows))
+                .with_context(|| format!("{}", out.display()))?;
             out!("{}", serde_json::to_string(&m)?);
         }
         Command::Compare {

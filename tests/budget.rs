@@ -694,7 +694,7 @@ fn the_model_names_the_frames_that_set_its_margins() {
             .unwrap();
         assert_eq!(row.f_relief > 0.0, s.relief, "{s:?}");
     }
-    let text = model_text(&model, "test", &set_by);
+    let text = model_text(&model, "test", &rows);
     assert!(text.contains(&format!("#   {}\n", set_by[0])), "{text}");
     // The text parses back to the same model.
     let back = optistim::fidelity::budget::ErrorModel::parse(&text, "test").unwrap();

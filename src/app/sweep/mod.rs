@@ -326,10 +326,13 @@ pub fn margins_set_by(m: &ErrorModel, rows: &[Row]) -> Vec<MarginSetBy> {
     set_by
 }
 
-/// The model file's text: a header saying how it was made and which frames set its margins
-/// ([`margins_set_by`]), then the model.
-pub fn model_text(m: &ErrorModel, how: &str, set_by: &[MarginSetBy]) -> String {
-    let set_by: String = set_by.iter().map(|l| format!("#   {l}\n")).collect();
+/// The model file's text: a header saying how it was made and which of the sweep's `rows`
+/// set its margins ([`margins_set_by`]), then the model.
+pub fn model_text(m: &ErrorModel, how: &str, rows: &[Row]) -> String {
+    let set_by: String = margins_set_by(m, rows)
+        .iter()
+        .map(|l| format!("#   {l}\n"))
+        .collect();
     let kinds: String = crate::fidelity::budget::Regressors::ALL
         .iter()
         .map(|(_, formula)| format!("#   {formula}\n"))
@@ -875,7 +878,7 @@ pub fn run(
             let text = model_text(
                 &m,
                 &format!("optistim sweep {} --fit {}", file.display(), path.display()),
-                &margins_set_by(&m, &rows),
+                &rows,
             );
             std::fs::write(path, text).map_err(|e| bad(path, e))?;
             Some(m)

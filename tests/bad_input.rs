@@ -179,6 +179,18 @@ fn out_of_range_values_name_file_key_value_and_allowed() {
     );
     invalid(
         "[render]",
+        "[render]\nmap_read_spacing_texels = 0.01",
+        "render.map_read_spacing_texels",
+        &["0.01", "0.0625 to 1 texel"],
+    );
+    invalid(
+        "[render]",
+        "[render]\nmap_read_spacing_texels = nan",
+        "render.map_read_spacing_texels",
+        &["NaN", "0.0625 to 1 texel"],
+    );
+    invalid(
+        "[render]",
         "[render]\ngridding = \"gaussian\"\ngaussian_window_px = 4",
         "render.gaussian_window_px",
         &["odd"],

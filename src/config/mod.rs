@@ -1746,6 +1746,12 @@ impl Validator<'_> {
             }
             s.relief_refine = k as u32;
         }
+        if let Some(x) = r.map_read_spacing_texels {
+            if !(1.0 / 16.0..=1.0).contains(&x) {
+                return self.err("render.map_read_spacing_texels", x, "0.0625 to 1 texel");
+            }
+            s.map_read_spacing_texels = x;
+        }
         // Under `map_filter = "relief"` the quadrangles integrate the smooth shape.
         let relief_on_quadrangles = s.map_filter != crate::render::MapFilter::Relief;
         if s.integration == Integration::Exact

@@ -305,6 +305,7 @@ pub struct RawRender {
     pub self_shadowing: Option<String>,
     pub map_filter: Option<String>,
     pub relief_refine: Option<i64>,
+    pub map_read_spacing_texels: Option<f64>,
     /// Mesh bodies: rays per pixel side, everywhere and at edges.
     pub raycast_samples: Option<i64>,
     pub raycast_edge_samples: Option<i64>,

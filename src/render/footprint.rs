@@ -21,10 +21,13 @@
 //! however many quadrangles the pixel receives.
 //!
 //! The mean over the footprint: the bilinear map is read at midpoints of the pixel no more
-//! than half a texel apart on the surface ([`READ_SPACING_TEXELS`]; towards a pole a map
-//! column narrows as `cos(lat)` and is not counted as a texel), at most [`MAX_READS`] per side
-//! (beyond, each read takes the area-averaged level of [`AlbedoMap::scale_over_lon_lat`] for
-//! its share). Each read is weighted by `mu0` interpolated there: the reads are spread evenly
+//! than half a texel apart on the surface (`render.map_read_spacing_texels`, [`Reads`];
+//! towards a pole a map column narrows as `cos(lat)` and is not counted as a texel), at most
+//! [`READ_SPAN_TEXELS`] of them per side (beyond, each read takes the area-averaged level of
+//! [`AlbedoMap::scale_over_lon_lat`] for its share). The midpoints miss the bilinear map's
+//! kinks at the texel centres by up to half their spacing: that is most of a far frame's
+//! median, which halving the spacing cuts by 2 to 3 for 1.5 to 2.4 times the frame's time
+//! ([`Reads::spacing_texels`]). Each read is weighted by `mu0` interpolated there: the reads are spread evenly
 //! over the image, not the surface, and a point's share of the pixel's power per unit of image
 //! is its radiance, `f_r mu0` (the variation of `f_r` inside a lit pixel is left out). Weighted
 //! by `mu0 mu`, the power per unit of surface, the reads undercounted the grazing side of
@@ -135,10 +138,61 @@ const BLOCK: usize = 8;
 /// "Where a pixel's footprint lies").
 pub const TOLERANCE_TEXELS: f64 = 0.01;
 
-/// The largest spacing of the map reads over a pixel [texels]: a pixel that spans `len`
-/// texels along an axis is read at `ceil(len / 0.5)` midpoints along it, so that the bilinear
-/// map's kinks at texel centres are integrated to a small fraction of a texel's change.
-const READ_SPACING_TEXELS: f64 = 0.5;
+/// How finely the step reads each pixel: the render settings it takes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reads {
+    /// The largest spacing of the map reads over a pixel [texels] (`render.
+    /// map_read_spacing_texels`, 0.5 by default): a pixel that spans `len` texels along an
+    /// axis is read at `ceil(len / spacing)` midpoints along it, at most
+    /// `READ_SPAN_TEXELS / spacing`. The midpoint rule integrates the bilinear map exactly
+    /// between its kinks at the texel centres and misses each kink by a share of a texel's
+    /// change that falls as the spacing squared. The planner's rung of one quadrangle per
+    /// pixel, against references at tolerance 1e-4 (`sweeps/map_read_spacing.toml`, 3
+    /// repeats beside another job, so the times are comparable with each other only;
+    /// `docs/performance.md`, "The map's kinks between the reads"), median (ms):
+    ///
+    /// | frame | spacing 0.5 | 0.25 | 0.125 |
+    /// | --- | --- | --- | --- |
+    /// | Lambert Moon, 70,000 km | 2.6e-4 (180) | 1.5e-4 (293) | 1.3e-4 (876) |
+    /// | Hapke Moon, NRHO row 0 | 4.3e-4 (182) | 1.9e-4 (270) | 1.6e-4 (704) |
+    /// | NRHO apolune, DEM, relief `k` 2 | 5.4e-4 (8045) | 1.8e-4 (19130) | 7.4e-5 (62328) |
+    /// | NRHO row 90, DEM, relief `k` 2 | 6.2e-4 (11628) | 2.1e-4 (24687) | 9.8e-5 (71537) |
+    ///
+    /// The p99 falls too on the DEM frames (2.7e-2 -> 2.1e-2 at `k` 2, 1.6e-2 -> 1.3e-2 at
+    /// `k` 4); the totals move by 2.1e-5 at most, either way.
+    pub spacing_texels: f64,
+    /// Under `MapFilter::Relief`: `render.relief_refine` ([`Step::refine`]).
+    pub relief_refine: u32,
+}
+
+impl Reads {
+    /// The settings' reads.
+    pub fn of(settings: &super::Settings) -> Reads {
+        Reads {
+            spacing_texels: settings.map_read_spacing_texels,
+            relief_refine: settings.relief_refine,
+        }
+    }
+
+    /// Reads per side of a pixel that spans `len` texels, at least `least`.
+    fn per_side(&self, len: f64, least: usize) -> usize {
+        let most = (READ_SPAN_TEXELS / self.spacing_texels).ceil() as usize;
+        ((len / self.spacing_texels).ceil() as usize).clamp(least, most.max(least))
+    }
+}
+
+impl Default for Reads {
+    fn default() -> Self {
+        Reads {
+            spacing_texels: 0.5,
+            relief_refine: 1,
+        }
+    }
+}
+
+/// The widest footprint [texels per side] read texel by texel: beyond, each of its reads
+/// takes the area-averaged level of its share (8 reads a side at the default spacing).
+pub const READ_SPAN_TEXELS: f64 = 4.0;
 
 /// Under `MapFilter::Relief` with `relief_refine` above 1, the fewest reads per pixel side.
 /// A pixel finer than half a texel was read once, at its centre, and [`Step::refine`] never
@@ -160,10 +214,6 @@ const READ_SPACING_TEXELS: f64 = 0.5;
 /// over a texel was read three times per side already (`docs/performance.md`, "At least
 /// three reads a side").
 const REFINED_MIN_READS: usize = 3;
-
-/// At most this many reads per pixel side; beyond (a pixel over more than 4 texels) each
-/// read takes the area-averaged level of its share of the footprint.
-const MAX_READS: usize = 8;
 
 /// Lines of sight per side of a pixel whose reads are cast ([`Step::cast_pixel`]); under
 /// `MapFilter::Relief` times the frame's `relief_refine`, at most [`MAX_CAST`].
@@ -266,6 +316,8 @@ struct Step<'a> {
     /// Under `shading`: the most a pixel's reads are refined per side where they disagree
     /// ([`Step::refine`]), and the factor of a cast pixel's lines of sight (1: off).
     refine: usize,
+    /// How finely each pixel is read ([`Reads`]).
+    reads: Reads,
     /// `A_sun A_cam` [m^4] of Eq. 12, with which a pixel near the smooth terminator is
     /// taken from its reads alone ([`Step::absolute_scale`]).
     a_sun_cam_m4: f64,
@@ -1089,9 +1141,10 @@ impl Step<'_> {
         } else {
             1
         };
-        let reads =
-            |len: f64| ((len / READ_SPACING_TEXELS).ceil() as usize).clamp(least, MAX_READS);
-        let (ns, nt) = (reads(len_s), reads(len_t));
+        let (ns, nt) = (
+            self.reads.per_side(len_s, least),
+            self.reads.per_side(len_t, least),
+        );
         band.offsets.clear();
         for b in 0..nt {
             for a in 0..ns {
@@ -1125,7 +1178,7 @@ impl Step<'_> {
             - mu0.iter().fold(f64::MAX, |a, &b| a.min(b)))
             / n;
         // What each read stands for [rad of latitude]: at most half a texel (the map itself)
-        // but where `MAX_READS` caps the reads (then an area-averaged level).
+        // but where `READ_SPAN_TEXELS` caps the reads (then an area-averaged level).
         let read_rad = (len_s / ns as f64).max(len_t / nt as f64) * band.dlat;
         // Hapke's ratio: tabulated per block, or for a lone pixel (the limb, the terminator)
         // at its own angles.
@@ -1204,7 +1257,7 @@ impl Step<'_> {
                 }
                 // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
                 // map at `ns x nt` midpoints of the pixel (at the footprint's level beyond
-                // `MAX_READS`), each read's ratio from the block's table, or a single pixel's
+                // `READ_SPAN_TEXELS`), each read's ratio from the block's table, or a single pixel's
                 // over the mean and spread of its reads (Hapke's is not linear in `w`).
                 let mut weights = 0.0;
                 band.sums.iter_mut().for_each(|x| *x = 0.0);
@@ -1688,7 +1741,7 @@ pub fn apply(
     shape: &Shape,
     relief: Option<&Relief>,
     shading: Option<(&Relief, SelfShadowing)>,
-    relief_refine: u32,
+    reads: Reads,
     brdf_ref: &Brdf,
     albedo: &AlbedoMap,
     pose: &Pose,
@@ -1701,7 +1754,7 @@ pub fn apply(
         shape,
         relief,
         shading,
-        relief_refine,
+        reads,
         brdf_ref,
         pose,
         a_sun_cam_m4,
@@ -1725,7 +1778,7 @@ pub fn apply_maps(
     shape: &Shape,
     relief: Option<&Relief>,
     shading: Option<(&Relief, SelfShadowing)>,
-    relief_refine: u32,
+    reads: Reads,
     brdf_ref: &Brdf,
     pose: &Pose,
     a_sun_cam_m4: f64,
@@ -1761,7 +1814,8 @@ pub fn apply_maps(
         // footprint by a few percent at most, which only picks the map level).
         ifov: (1.0 / (fx * fy)).sqrt(),
         shading,
-        refine: relief_refine.max(1) as usize,
+        refine: reads.relief_refine.max(1) as usize,
+        reads,
         a_sun_cam_m4,
     };
     let bw = w.div_ceil(BLOCK);
@@ -1803,7 +1857,7 @@ pub fn apply_maps(
                 dlon,
                 dlat,
                 ranges: ranges.clone(),
-                offsets: Vec::with_capacity(MAX_READS * MAX_READS),
+                offsets: Vec::with_capacity(64),
                 reads: Vec::with_capacity(CAST * CAST),
                 relief: Vec::with_capacity(CAST * CAST),
                 lit: Vec::with_capacity(CAST * CAST),

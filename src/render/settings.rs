@@ -175,6 +175,10 @@ pub struct Settings {
     /// read again twice as finely while its light still moves), and the factor of the lines
     /// of sight a limb pixel casts (8 x 8 times it, at most 32 x 32).
     pub relief_refine: u32,
+    /// Under `MapFilter::Pixel` and `Relief`: the largest spacing of a pixel's map reads
+    /// [texels] (0.5; 0.0625 to 1). Finer reads lower the median a textured frame keeps
+    /// whatever its quadrangles ([`super::footprint::Reads`]).
+    pub map_read_spacing_texels: f64,
     /// Mesh bodies ([`crate::raycast::sampled`]): rays per pixel side everywhere.
     pub raycast_samples: u32,
     /// Mesh bodies: rays per pixel side in pixels at the limb and at the edges of the light.
@@ -227,6 +231,7 @@ impl Default for Settings {
             self_shadowing: SelfShadowing::Off,
             map_filter: MapFilter::Area,
             relief_refine: 1,
+            map_read_spacing_texels: 0.5,
             raycast_samples: 1,
             raycast_edge_samples: 4,
             raycast_quadratic_light: true,

@@ -794,12 +794,16 @@ fn fine_hills(
 
 /// The reference of [`fine_hills`] at `phase_deg` (tolerance 1e-4, 6 halvings), and a
 /// function measuring a frame of it under `render` and `filter` against that: its error and
-/// its reads' own p99 estimate.
-#[allow(clippy::type_complexity)]
+/// its statistics (its reads' own estimates among them).
 fn fine_hills_measured(
     phase_deg: f64,
-) -> impl Fn(&str, optistim::render::MapFilter) -> (optistim::fidelity::metrics::FrameError, Option<f64>)
-{
+) -> impl Fn(
+    &str,
+    optistim::render::MapFilter,
+) -> (
+    optistim::fidelity::metrics::FrameError,
+    optistim::render::FrameStats,
+) {
     use optistim::fidelity::metrics::frame_error;
     use optistim::raycast::reference::{self, ReferenceSettings};
     let cfg = fine_hills(phase_deg, "", optistim::render::MapFilter::Pixel);
@@ -817,7 +821,7 @@ fn fine_hills_measured(
             .render(&cfg.scene, &cfg.pose, &cfg.settings)
             .unwrap();
         let e = frame_error(&frame.pl, &r.frame.pl, 64, 64);
-        (e, frame.stats.relief_read_p99)
+        (e, frame.stats)
     }
 }
 
@@ -839,11 +843,11 @@ fn the_relief_over_each_pixel_footprint_matches_the_reference() {
     use optistim::render::MapFilter;
     // Each frame's error against the reference, and its own estimate of its reads' p99.
     let err = fine_hills_measured(60.0);
-    let (pixel, pixel_estimate) = err(
+    let (pixel, pixel_stats) = err(
         "points_per_pixel = 4.0\nboundary_nodes = 8",
         MapFilter::Pixel,
     );
-    let (relief, relief_estimate) = err("points_per_pixel = 1.0", MapFilter::Relief);
+    let (relief, relief_stats) = err("points_per_pixel = 1.0", MapFilter::Relief);
     eprintln!("pixel, 4 per pixel: {pixel:?}\nrelief, 1 per pixel: {relief:?}");
     assert!(relief.median < pixel.median / 3.0, "{relief:?} {pixel:?}");
     assert!(
@@ -854,13 +858,23 @@ fn the_relief_over_each_pixel_footprint_matches_the_reference() {
     // them) is of the order of the p99 measured against the reference: here 8.7e-2 against
     // 0.23, whose pixels are the limb's and the terminator's as much as the reads' (the
     // quadrangles at 4 per pixel measure 0.36), which the planner's model predicts.
-    let estimate = relief_estimate.unwrap();
+    let estimate = relief_stats.relief_read_p99.unwrap();
     eprintln!("relief, its own p99 estimate: {estimate:.3e}");
     assert!(
         estimate > relief.p99 / 4.0 && estimate < 5.0 * relief.p99,
         "{estimate} {relief:?}"
     );
-    assert_eq!(pixel_estimate, None);
+    assert_eq!(pixel_stats.relief_read_p99, None);
+    // The same estimate's median is above the measured median, as on the NRHO's far frames
+    // (there 5 to 8 times, `docs/performance.md`, "The reads' own median"): a quarter of
+    // the reads misses the map's kinks and the hills' shading by more than all of them do.
+    let median = relief_stats.relief_read_median.unwrap();
+    eprintln!("relief, its own median estimate: {median:.3e}");
+    assert!(
+        median > relief.median && median < 20.0 * relief.median && median < estimate,
+        "{median} {relief:?}"
+    );
+    assert_eq!(pixel_stats.relief_read_median, None);
 }
 
 /// `relief_refine`: a pixel whose reads' own estimate is above 1e-2, or whose reads and the
@@ -886,7 +900,8 @@ fn pixels_a_shadows_edge_crosses_are_read_again() {
         .iter()
         .map(|k| {
             let render = format!("points_per_pixel = 1.0\nrelief_refine = {k}");
-            let (e, estimate) = err(&render, MapFilter::Relief);
+            let (e, stats) = err(&render, MapFilter::Relief);
+            let estimate = stats.relief_read_p99;
             eprintln!("relief_refine {k}: {e:?}, its own p99 estimate {estimate:?}");
             (e, estimate.unwrap())
         })

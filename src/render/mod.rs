@@ -108,6 +108,10 @@ pub struct FrameStats {
     /// own estimate of their error ([`footprint::apply_maps`]), which the planner's
     /// prediction takes where it is the larger ([`crate::fidelity::budget::Plan::observe`]).
     pub relief_read_p99: Option<f64>,
+    /// The same estimate's median over the lit pixels: where the map's kinks between the
+    /// reads are the frame's median error ([`footprint::Reads`]), what a quarter of the reads
+    /// would have missed.
+    pub relief_read_median: Option<f64>,
 }
 
 /// One rendered frame.
@@ -621,7 +625,9 @@ fn render_in_pool(
             &mut layers,
         );
         if let Some(e) = estimate {
-            stats.relief_read_p99 = Some(read_p99(&e, &pl_image));
+            let [median, p99] = read_quantiles(&e, &pl_image);
+            stats.relief_read_median = Some(median);
+            stats.relief_read_p99 = Some(p99);
         }
         for (b, img) in own_view {
             let intr_b = band_intr
@@ -671,7 +677,7 @@ fn render_in_pool(
 }
 
 /// The 99th percentile of `estimate` over the pixels lit in `image` (0 with none).
-fn read_p99(estimate: &[f64], image: &[f64]) -> f64 {
+fn read_quantiles(estimate: &[f64], image: &[f64]) -> [f64; 2] {
     let mut lit: Vec<f64> = estimate
         .iter()
         .zip(image)
@@ -679,9 +685,9 @@ fn read_p99(estimate: &[f64], image: &[f64]) -> f64 {
         .map(|(&e, _)| e)
         .collect();
     if lit.is_empty() {
-        0.0
+        [0.0; 2]
     } else {
-        crate::stats::quantiles(&mut lit, [0.99])[0]
+        crate::stats::quantiles(&mut lit, [0.5, 0.99])
     }
 }
 

@@ -179,6 +179,10 @@ pub struct Row {
     /// existed: [`Row::relief_refine`] reads it from `render`).
     #[serde(default)]
     pub relief_refine: Option<u32>,
+    /// The median of the same estimate ([`crate::render::FrameStats::relief_read_median`]),
+    /// beside the measured `err_median`; NaN for other settings and in older CSVs.
+    #[serde(default = "nan")]
+    pub est_relief_median: f64,
 }
 
 fn nan() -> f64 {
@@ -736,9 +740,12 @@ pub fn run(
                 (Err(e), _) | (_, Some(Err(e))) => e.clone(),
                 _ => String::new(),
             };
-            let est_relief_p99 = match &frames[k] {
-                Some(Ok(f)) => f.stats.relief_read_p99.unwrap_or(f64::NAN),
-                _ => f64::NAN,
+            let (est_relief_median, est_relief_p99) = match &frames[k] {
+                Some(Ok(f)) => (
+                    f.stats.relief_read_median.unwrap_or(f64::NAN),
+                    f.stats.relief_read_p99.unwrap_or(f64::NAN),
+                ),
+                _ => (f64::NAN, f64::NAN),
             };
             let (e, kept, samples) = match &frames[k] {
                 Some(Ok(f)) => (
@@ -794,6 +801,7 @@ pub fn run(
                 f_relief: features.relief,
                 est_relief_p99,
                 relief_refine,
+                est_relief_median,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,
@@ -827,7 +835,10 @@ pub fn run(
                 if row.est_relief_p99.is_nan() {
                     String::new()
                 } else {
-                    format!("  (its reads' own p99 estimate {:.2e})", row.est_relief_p99)
+                    format!(
+                        "  (its reads' own estimate: median {:.2e}, p99 {:.2e})",
+                        row.est_relief_median, row.est_relief_p99
+                    )
                 },
                 if row.failure.is_empty() {
                     String::new()

@@ -27,11 +27,11 @@
 //! [`AlbedoMap::scale_over_lon_lat`] for its share). The midpoints miss the bilinear map's
 //! kinks at the texel centres by up to half their spacing: that is most of a far frame's
 //! median, which halving the spacing cuts by 2 to 3 for 1.5 to 2.4 times the frame's time
-//! ([`Reads::spacing_texels`]). Each read is weighted by `mu0` interpolated there: the reads are spread evenly
-//! over the image, not the surface, and a point's share of the pixel's power per unit of image
-//! is its radiance, `f_r mu0` (the variation of `f_r` inside a lit pixel is left out). Weighted
-//! by `mu0 mu`, the power per unit of surface, the reads undercounted the grazing side of
-//! every pixel near the limb. (`tests/maps.rs` measures the step: 2e-3 at the median on a
+//! ([`Reads::spacing_texels`]). Each read is weighted by `mu0` interpolated there: the reads
+//! are spread evenly over the image, not the surface, and a point's share of the pixel's
+//! power per unit of image is its radiance, `f_r mu0` (the variation of `f_r` inside a lit
+//! pixel is left out). Weighted by `mu0 mu`, the power per unit of surface, the reads
+//! undercounted the grazing side of every pixel near the limb. (`tests/maps.rs` measures the step: 2e-3 at the median on a
 //! map that changes by 40 % within 4 texels.)
 //!
 //! Cost. Casting every pixel's line of sight took 75 ms a megapixel on 2 cores, more than the
@@ -178,15 +178,6 @@ impl Reads {
     fn per_side(&self, len: f64, least: usize) -> usize {
         let most = (READ_SPAN_TEXELS / self.spacing_texels).ceil() as usize;
         ((len / self.spacing_texels).ceil() as usize).clamp(least, most.max(least))
-    }
-}
-
-impl Default for Reads {
-    fn default() -> Self {
-        Reads {
-            spacing_texels: 0.5,
-            relief_refine: 1,
-        }
     }
 }
 
@@ -1257,8 +1248,8 @@ impl Step<'_> {
                 }
                 // The pixel's weighted mean of the BRDF's ratio over each map: the bilinear
                 // map at `ns x nt` midpoints of the pixel (at the footprint's level beyond
-                // `READ_SPAN_TEXELS`), each read's ratio from the block's table, or a single pixel's
-                // over the mean and spread of its reads (Hapke's is not linear in `w`).
+                // `READ_SPAN_TEXELS`), each read's ratio from the block's table, or a single
+                // pixel's over the mean and spread of its reads (Hapke's is not linear in `w`).
                 let mut weights = 0.0;
                 band.sums.iter_mut().for_each(|x| *x = 0.0);
                 band.squares.iter_mut().for_each(|x| *x = 0.0);

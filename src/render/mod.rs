@@ -676,7 +676,8 @@ fn render_in_pool(
     })
 }
 
-/// The 99th percentile of `estimate` over the pixels lit in `image` (0 with none).
+/// The median and the 99th percentile of `estimate` over the pixels lit in `image` (0 with
+/// none).
 fn read_quantiles(estimate: &[f64], image: &[f64]) -> [f64; 2] {
     let mut lit: Vec<f64> = estimate
         .iter()

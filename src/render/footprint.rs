@@ -173,12 +173,13 @@ impl Reads {
             relief_refine: settings.relief_refine,
         }
     }
+}
 
-    /// Reads per side of a pixel that spans `len` texels, at least `least`.
-    fn per_side(&self, len: f64, least: usize) -> usize {
-        let most = (READ_SPAN_TEXELS / self.spacing_texels).ceil() as usize;
-        ((len / self.spacing_texels).ceil() as usize).clamp(least, most.max(least))
-    }
+/// Reads per side of a pixel that spans `len` texels, at most `spacing` [texels] apart and
+/// at least `least` ([`Reads::spacing_texels`]).
+fn reads_per_side(len: f64, spacing: f64, least: usize) -> usize {
+    let most = (READ_SPAN_TEXELS / spacing).ceil() as usize;
+    ((len / spacing).ceil() as usize).clamp(least, most.max(least))
 }
 
 /// The widest footprint [texels per side] read texel by texel: beyond, each of its reads
@@ -307,8 +308,8 @@ struct Step<'a> {
     /// Under `shading`: the most a pixel's reads are refined per side where they disagree
     /// ([`Step::refine`]), and the factor of a cast pixel's lines of sight (1: off).
     refine: usize,
-    /// How finely each pixel is read ([`Reads`]).
-    reads: Reads,
+    /// The largest spacing of a pixel's map reads [texels] ([`Reads::spacing_texels`]).
+    spacing_texels: f64,
     /// `A_sun A_cam` [m^4] of Eq. 12, with which a pixel near the smooth terminator is
     /// taken from its reads alone ([`Step::absolute_scale`]).
     a_sun_cam_m4: f64,
@@ -1133,8 +1134,8 @@ impl Step<'_> {
             1
         };
         let (ns, nt) = (
-            self.reads.per_side(len_s, least),
-            self.reads.per_side(len_t, least),
+            reads_per_side(len_s, self.spacing_texels, least),
+            reads_per_side(len_t, self.spacing_texels, least),
         );
         band.offsets.clear();
         for b in 0..nt {
@@ -1806,7 +1807,7 @@ pub fn apply_maps(
         ifov: (1.0 / (fx * fy)).sqrt(),
         shading,
         refine: reads.relief_refine.max(1) as usize,
-        reads,
+        spacing_texels: reads.spacing_texels,
         a_sun_cam_m4,
     };
     let bw = w.div_ceil(BLOCK);

@@ -875,6 +875,13 @@ fn the_relief_over_each_pixel_footprint_matches_the_reference() {
         "{median} {relief:?}"
     );
     assert_eq!(pixel_stats.relief_read_median, None);
+    // Signed and summed over the frame, the reads' errors cancel as the measured total's do.
+    let total = relief_stats.relief_read_total.unwrap();
+    eprintln!(
+        "relief, its own total estimate: {total:+.3e}, measured {:+.3e}",
+        relief.total
+    );
+    assert_eq!(pixel_stats.relief_read_total, None);
 }
 
 /// `relief_refine`: a pixel whose reads' own estimate is above 1e-2, or whose reads and the

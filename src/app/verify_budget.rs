@@ -95,6 +95,31 @@ pub struct FrameCheck {
     pub rung_meets: String,
     pub rung_p99: String,
     pub rung_total: String,
+    /// The budgeted frame's own estimate of its relief reads' error, median and p99 over the
+    /// lit pixels (`FrameStats::relief_read_median`, `relief_read_p99`; NaN where it read
+    /// no relief): what a claim from the frame's own reads would be fitted on.
+    #[serde(default = "nan")]
+    pub relief_read_median: f64,
+    #[serde(default = "nan")]
+    pub relief_read_p99: f64,
+    /// The same, signed and summed over the frame (`FrameStats::relief_read_total`), beside
+    /// `total_signed`.
+    #[serde(default = "nan")]
+    pub relief_read_total: f64,
+    /// Per rung, space-separated: its measured median, and its reads' own estimates (median,
+    /// p99 and signed total; `NaN` for a rung that reads no relief).
+    #[serde(default)]
+    pub rung_median: String,
+    #[serde(default)]
+    pub rung_read_median: String,
+    #[serde(default)]
+    pub rung_read_p99: String,
+    #[serde(default)]
+    pub rung_read_total: String,
+}
+
+fn nan() -> f64 {
+    f64::NAN
 }
 
 #[derive(Debug, Serialize)]
@@ -407,7 +432,7 @@ pub fn run(
         );
         let verifiable = ver_p99 && ver_total;
         let (tails, all) = meets(&e, &budget);
-        let mut rungs: [Vec<String>; 4] = Default::default();
+        let mut rungs: [Vec<String>; 8] = Default::default();
         for (_, s, _) in &ladder {
             let t0 = Instant::now();
             let f = renderer.render(&config.scene, &pose, s)?;
@@ -418,8 +443,22 @@ pub fn run(
             rungs[1].push(if t { "1" } else { "0" }.to_string());
             rungs[2].push(format!("{:.4e}", ef.p99));
             rungs[3].push(format!("{:.4e}", signed(&f.pl)));
+            rungs[4].push(format!("{:.4e}", ef.median));
+            let read = |v: Option<f64>| format!("{:.4e}", v.unwrap_or(f64::NAN));
+            rungs[5].push(read(f.stats.relief_read_median));
+            rungs[6].push(read(f.stats.relief_read_p99));
+            rungs[7].push(read(f.stats.relief_read_total));
         }
-        let [rung_ms, rung_meets, rung_p99, rung_total] = rungs.map(|r| r.join(" "));
+        let [
+            rung_ms,
+            rung_meets,
+            rung_p99,
+            rung_total,
+            rung_median,
+            rung_read_median,
+            rung_read_p99,
+            rung_read_total,
+        ] = rungs.map(|r| r.join(" "));
         let c = FrameCheck {
             inputs: inputs.clone(),
             row,
@@ -453,6 +492,13 @@ pub fn run(
             rung_meets,
             rung_p99,
             rung_total,
+            relief_read_median: frame.stats.relief_read_median.unwrap_or(f64::NAN),
+            relief_read_p99: frame.stats.relief_read_p99.unwrap_or(f64::NAN),
+            relief_read_total: frame.stats.relief_read_total.unwrap_or(f64::NAN),
+            rung_median,
+            rung_read_median,
+            rung_read_p99,
+            rung_read_total,
         };
         progress(&format!(
             "row {row}: {:.0} km, phase {:.1}: {} in {budget_ms:.1} ms; median {:.2e} p99 {:.2e} total {:.2e} (predicted {:.1e} / {:.1e} / {:.1e}){}; reference {:.1} s (its p99 and total: bound {:.1e}, {:.1e}; signed {:.1e}, {:.1e})",

@@ -536,7 +536,7 @@ impl Step<'_> {
     /// `grid`: the reads' `(columns, rows)` where they lie on a grid over the pixel, row by
     /// row; then the pixel's factor is also taken from every other read of every other row
     /// (a quarter of them), and the relative difference between the two is returned as the
-    /// reads' own error estimate (see [`relief_estimate`]); else 0.
+    /// reads' own error estimate, signed (see [`relief_estimate`]); else 0.
     fn relief_pixel(
         &self,
         band: &mut Band,
@@ -857,8 +857,8 @@ struct Band<'a> {
     refine: Vec<(usize, usize, f64, bool)>,
     /// The shadow answers of a pixel's reads at the level before the one being read.
     coarse: Vec<Option<Shadowed>>,
-    /// Under `MapFilter::Relief`: the band's rows of the reads' own error estimate per pixel
-    /// ([`Step::relief_pixel`]); empty otherwise.
+    /// Under `MapFilter::Relief`: the band's rows of the reads' own error estimate per pixel,
+    /// signed ([`Step::relief_pixel`]); empty otherwise.
     estimate: &'a mut [f64],
 }
 
@@ -1229,7 +1229,7 @@ impl Step<'_> {
                     band.take_reads(lw, (ca, rb), (ns, nt));
                     let got = self.relief_pixel(band, read_rad, Some((ns, nt)), ns * nt);
                     if self.refine > 1
-                        && (got.estimate > REFINE_ABOVE
+                        && (got.estimate.abs() > REFINE_ABOVE
                             || mixed(
                                 &band.lattice,
                                 &band.lattice_lit,
@@ -1702,17 +1702,21 @@ fn quadratic(table: &[f64; TABLE], x: f64) -> f64 {
 
 /// The reads' own estimate of a pixel's relative error under `MapFilter::Relief`, from its
 /// factor over all its reads (`fine`) and over a quarter of them on a grid twice as coarse
-/// (`coarse`): `READ_ESTIMATE_SCALE |fine - coarse| / fine`; where no read is lit but some
-/// of the coarse grid's would be, 1. It cannot see a pixel none of whose reads is lit (a
-/// sliver of light between shadows): across NRHO row 493's terminator (2 x 2 reads a
-/// pixel) 414 of 10,085 lit pixels, each about 1 % of the median pixel's light, are dark,
-/// and the estimated p99 is 0.38 where 1.0 is measured.
+/// (`coarse`), signed as the error of `fine`: by Richardson's extrapolation the limit is
+/// about `fine + (fine - coarse) / 3`, so `fine` is off by `READ_ESTIMATE_SCALE (coarse -
+/// fine) / fine` of itself. Its magnitude is the pixel's estimate (the refinement's test,
+/// the frame's median and p99); its sign lets the pixels' errors cancel in the frame's total
+/// ([`crate::render::FrameStats::relief_read_total`]). Where no read is lit but some of the
+/// coarse grid's would be, -1 (all the light missed). It cannot see a pixel none of whose
+/// reads is lit (a sliver of light between shadows): across NRHO row 493's terminator (2 x 2
+/// reads a pixel) 414 of 10,085 lit pixels, each about 1 % of the median pixel's light, are
+/// dark, and the estimated p99 is 0.38 where 1.0 is measured.
 #[inline]
 fn relief_estimate(fine: f64, coarse: f64) -> f64 {
     if fine > 0.0 {
-        READ_ESTIMATE_SCALE * (fine - coarse).abs() / fine
+        READ_ESTIMATE_SCALE * (coarse - fine) / fine
     } else if coarse > 0.0 {
-        1.0
+        -1.0
     } else {
         0.0
     }
@@ -1761,7 +1765,8 @@ pub fn apply(
 /// at; `shading` (`MapFilter::Relief`, with `relief` then `None`): the relief whose shading
 /// and shadows the reads carry, the quadrangles having integrated the smooth shape. Under
 /// `shading` it returns the reads' own relative error estimate per pixel of the first
-/// layer ([`relief_estimate`]; 0 where a pixel was not read on a grid); else `None`.
+/// layer, signed ([`relief_estimate`]; 0 where a pixel was not read on a grid); else
+/// `None`.
 /// `a_sun_cam_m4`: `A_sun A_cam` of Eq. 12 (the pixels near the smooth terminator are then
 /// taken from their reads alone).
 #[allow(clippy::too_many_arguments)]

@@ -112,6 +112,10 @@ pub struct FrameStats {
     /// reads are the frame's median error ([`footprint::Reads`]), what a quarter of the reads
     /// would have missed.
     pub relief_read_median: Option<f64>,
+    /// The same estimate, signed, summed over the frame: `sum_i I_i e_i / sum_i I_i` (`I_i`
+    /// a pixel's `(P/L)`, `e_i` its reads' signed relative error): the reads' share of the
+    /// frame's total error, where the pixels' errors cancel as they do in the measured total.
+    pub relief_read_total: Option<f64>,
 }
 
 /// One rendered frame.
@@ -628,6 +632,7 @@ fn render_in_pool(
             let [median, p99] = read_quantiles(&e, &pl_image);
             stats.relief_read_median = Some(median);
             stats.relief_read_p99 = Some(p99);
+            stats.relief_read_total = Some(read_total(&e, &pl_image));
         }
         for (b, img) in own_view {
             let intr_b = band_intr
@@ -676,20 +681,31 @@ fn render_in_pool(
     })
 }
 
-/// The median and the 99th percentile of `estimate` over the pixels lit in `image` (0 with
-/// none).
+/// The median and the 99th percentile of `estimate`'s magnitude over the pixels lit in
+/// `image` (0 with none).
 fn read_quantiles(estimate: &[f64], image: &[f64]) -> [f64; 2] {
     let mut lit: Vec<f64> = estimate
         .iter()
         .zip(image)
         .filter(|&(_, &v)| v > 0.0)
-        .map(|(&e, _)| e)
+        .map(|(&e, _)| e.abs())
         .collect();
     if lit.is_empty() {
         [0.0; 2]
     } else {
         crate::stats::quantiles(&mut lit, [0.5, 0.99])
     }
+}
+
+/// `estimate` (signed, relative per pixel) weighed by `image`: the relative error it puts on
+/// the image's sum (0 on a dark image).
+fn read_total(estimate: &[f64], image: &[f64]) -> f64 {
+    let (mut err, mut sum) = (0.0, 0.0);
+    for (&e, &v) in estimate.iter().zip(image) {
+        err += e * v;
+        sum += v;
+    }
+    if sum > 0.0 { err / sum } else { 0.0 }
 }
 
 /// The cloud's image through `view`: projection of the midpoints (and the vertices, for
@@ -1043,4 +1059,22 @@ fn plan_bands(
         }
     }
     bounds
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reads_total_weighs_each_pixels_signed_estimate_by_its_light() {
+        // Two lit pixels off by +10 % and -10 % of themselves, the second three times the
+        // first: the frame's total is off by (0.1 - 0.3) / 4; the dark pixel's estimate
+        // weighs nothing.
+        let total = read_total(&[0.1, -0.1, 0.5], &[1.0, 3.0, 0.0]);
+        assert!((total + 0.05).abs() < 1e-15, "{total}");
+        assert_eq!(read_total(&[0.5], &[0.0]), 0.0);
+        // The quantiles take the magnitudes, over the lit pixels alone.
+        let [median, p99] = read_quantiles(&[-0.2, 0.1, 0.9], &[1.0, 1.0, 0.0]);
+        assert!(median >= 0.1 && p99 > 0.15 && p99 <= 0.2, "{median} {p99}");
+    }
 }

@@ -183,6 +183,11 @@ pub struct Row {
     /// beside the measured `err_median`; NaN for other settings and in older CSVs.
     #[serde(default = "nan")]
     pub est_relief_median: f64,
+    /// The same estimate, signed and summed over the frame
+    /// ([`crate::render::FrameStats::relief_read_total`]), beside the measured `err_total`;
+    /// NaN for other settings and in older CSVs.
+    #[serde(default = "nan")]
+    pub est_relief_total: f64,
 }
 
 fn nan() -> f64 {
@@ -740,12 +745,13 @@ pub fn run(
                 (Err(e), _) | (_, Some(Err(e))) => e.clone(),
                 _ => String::new(),
             };
-            let (est_relief_median, est_relief_p99) = match &frames[k] {
+            let (est_relief_median, est_relief_p99, est_relief_total) = match &frames[k] {
                 Some(Ok(f)) => (
                     f.stats.relief_read_median.unwrap_or(f64::NAN),
                     f.stats.relief_read_p99.unwrap_or(f64::NAN),
+                    f.stats.relief_read_total.unwrap_or(f64::NAN),
                 ),
-                _ => (f64::NAN, f64::NAN),
+                _ => (f64::NAN, f64::NAN, f64::NAN),
             };
             let (e, kept, samples) = match &frames[k] {
                 Some(Ok(f)) => (
@@ -802,6 +808,7 @@ pub fn run(
                 est_relief_p99,
                 relief_refine,
                 est_relief_median,
+                est_relief_total,
                 scene: scene.name.clone(),
                 setting: s.name.clone(),
                 render,
@@ -836,8 +843,8 @@ pub fn run(
                     String::new()
                 } else {
                     format!(
-                        "  (its reads' own estimate: median {:.2e}, p99 {:.2e})",
-                        row.est_relief_median, row.est_relief_p99
+                        "  (its reads' own estimate: median {:.2e}, p99 {:.2e}, total {:+.2e})",
+                        row.est_relief_median, row.est_relief_p99, row.est_relief_total
                     )
                 },
                 if row.failure.is_empty() {

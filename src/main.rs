@@ -147,6 +147,10 @@ enum Command {
         /// "relief_refine = 4"); the references, which read none, stay the file's (cached).
         #[arg(long, default_value = "")]
         render: String,
+        /// Also write each budgeted frame's (P/L) as DIR/frames/ROW.f64 (little-endian f64,
+        /// row by row; the reference's is DIR/references/KEY.f64 after a head of five f64).
+        #[arg(long)]
+        keep_frames: bool,
     },
     /// Fits the fidelity planner's error model on the ladder rows of one or more sweep CSVs.
     FitModel {
@@ -493,6 +497,7 @@ fn run() -> anyhow::Result<()> {
             max_depth,
             reference_method,
             render,
+            keep_frames,
         } => {
             let cfg = config::load_with_render(&scene, &render)?;
             let reference = optistim::raycast::reference::ReferenceSettings {
@@ -509,6 +514,7 @@ fn run() -> anyhow::Result<()> {
                 &reference,
                 reference_method,
                 &out,
+                keep_frames,
                 |line| eprintln!("{line}"),
             )?;
             out!("{}", serde_json::to_string(&report)?);

@@ -540,6 +540,7 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
             &reference,
             ReferenceMethod::Cubature,
             out,
+            true,
             |l| heard.push(l.to_string()),
         );
         (r, heard)
@@ -557,6 +558,15 @@ fn a_budget_check_goes_on_where_it_stopped_and_mixes_no_inputs() {
     assert_eq!(heard.len(), 2, "{heard:?}");
     let first = std::fs::read_to_string(&csv).unwrap();
     assert_eq!(rows_in(&first), [0, 4]);
+    // Each budgeted frame is kept beside the references, its (P/L) as little-endian f64.
+    let (w, h) = {
+        let i = &plain.0.scene.camera.intrinsics;
+        (i.width_px as usize, i.height_px as usize)
+    };
+    for row in [0, 4] {
+        let kept = std::fs::read(out.join(format!("frames/{row}.f64"))).unwrap();
+        assert_eq!(kept.len(), 8 * w * h, "row {row}");
+    }
     // The reference's bound and its estimate with the cells' signs kept, both in the rows.
     let mut reader = csv::Reader::from_reader(first.as_bytes());
     let head = reader.headers().unwrap().clone();

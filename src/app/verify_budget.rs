@@ -295,6 +295,15 @@ fn rows_done(csv_path: &Path, inputs: &str) -> Result<Vec<FrameCheck>, AppError>
     Ok(done)
 }
 
+/// Writes the budgeted frame's `(P/L)` [sr m^2] of stream row `row` as `dir/ROW.f64`
+/// (little-endian f64, row by row, no head), beside the references' cache files (which hold
+/// the same after their head): a frame over the budget can then be looked at pixel by pixel.
+fn keep_frame(dir: &Path, row: usize, pl: &[f64]) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let bytes: Vec<u8> = pl.iter().flat_map(|x| x.to_le_bytes()).collect();
+    std::fs::write(dir.join(format!("{row}.f64")), bytes)
+}
+
 /// Runs the check on `rows` of the stream, or on `frames` frames spread evenly over it;
 /// `progress` hears one line per frame. Frames already measured in `out/frames.csv` on the
 /// same inputs are read, not measured again (see the module's documentation).
@@ -308,6 +317,7 @@ pub fn run(
     reference: &ReferenceSettings,
     method: ReferenceMethod,
     out: &Path,
+    keep_frames: bool,
     mut progress: impl FnMut(&str),
 ) -> Result<VerifyReport, AppError> {
     let bad = |p: &Path, e: &dyn std::fmt::Display| {
@@ -404,6 +414,9 @@ pub fn run(
         let frame = renderer.render(&config.scene, &pose, &plan.settings)?;
         plan.observe(&frame.stats);
         let budget_ms = t0.elapsed().as_secs_f64() * 1e3;
+        if keep_frames {
+            keep_frame(&out.join("frames"), row, &frame.pl).map_err(|e| bad(out, &e))?;
+        }
         let reference = super::sweep::cached_reference(
             &scene_text,
             &config.scene,

@@ -34,6 +34,7 @@
 //!   then its quarters, ...), so that a run stopped part way has covered the whole pass.
 
 use super::AppError;
+use super::sweep::nan;
 use crate::config::Config;
 use crate::fidelity::budget::{Budget, LADDER, Planner, RELIEF_REFINES};
 use crate::fidelity::metrics::{FrameError, frame_error};
@@ -116,10 +117,6 @@ pub struct FrameCheck {
     pub rung_read_p99: String,
     #[serde(default)]
     pub rung_read_total: String,
-}
-
-fn nan() -> f64 {
-    f64::NAN
 }
 
 #[derive(Debug, Serialize)]
@@ -415,7 +412,8 @@ pub fn run(
         plan.observe(&frame.stats);
         let budget_ms = t0.elapsed().as_secs_f64() * 1e3;
         if keep_frames {
-            keep_frame(&out.join("frames"), row, &frame.pl).map_err(|e| bad(out, &e))?;
+            let dir = out.join("frames");
+            keep_frame(&dir, row, &frame.pl).map_err(|e| bad(&dir, &e))?;
         }
         let reference = super::sweep::cached_reference(
             &scene_text,

@@ -190,7 +190,7 @@ pub struct Row {
     pub est_relief_total: f64,
 }
 
-fn nan() -> f64 {
+pub(crate) fn nan() -> f64 {
     f64::NAN
 }
 

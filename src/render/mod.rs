@@ -114,7 +114,7 @@ pub struct FrameStats {
     pub relief_read_median: Option<f64>,
     /// The same estimate, signed, summed over the frame: `sum_i I_i e_i / sum_i I_i` (`I_i`
     /// a pixel's `(P/L)`, `e_i` its reads' signed relative error). A diagnostic, not an
-    /// estimate of the frame's total: on 26 frames of the NRHO and Artemis streams, at
+    /// estimate of the frame's total: on 27 frames of the NRHO and Artemis streams, at
     /// `relief_refine` 2 to 8, it had the measured total's sign on about half and did not
     /// correlate with it (`docs/performance.md`, "The reads' own estimates on the streams'
     /// frames").

@@ -455,10 +455,9 @@ pub fn run(
             rungs[2].push(format!("{:.4e}", ef.p99));
             rungs[3].push(format!("{:.4e}", signed(&f.pl)));
             rungs[4].push(format!("{:.4e}", ef.median));
-            let read = |v: Option<f64>| format!("{:.4e}", v.unwrap_or(f64::NAN));
-            rungs[5].push(read(f.stats.relief_read_median));
-            rungs[6].push(read(f.stats.relief_read_p99));
-            rungs[7].push(read(f.stats.relief_read_total));
+            for (col, v) in rungs[5..].iter_mut().zip(f.stats.relief_reads_or_nan()) {
+                col.push(format!("{v:.4e}"));
+            }
         }
         let [
             rung_ms,
@@ -470,6 +469,8 @@ pub fn run(
             rung_read_p99,
             rung_read_total,
         ] = rungs.map(|r| r.join(" "));
+        let [relief_read_median, relief_read_p99, relief_read_total] =
+            frame.stats.relief_reads_or_nan();
         let c = FrameCheck {
             inputs: inputs.clone(),
             row,
@@ -503,9 +504,9 @@ pub fn run(
             rung_meets,
             rung_p99,
             rung_total,
-            relief_read_median: frame.stats.relief_read_median.unwrap_or(f64::NAN),
-            relief_read_p99: frame.stats.relief_read_p99.unwrap_or(f64::NAN),
-            relief_read_total: frame.stats.relief_read_total.unwrap_or(f64::NAN),
+            relief_read_median,
+            relief_read_p99,
+            relief_read_total,
             rung_median,
             rung_read_median,
             rung_read_p99,

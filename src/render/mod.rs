@@ -121,6 +121,20 @@ pub struct FrameStats {
     pub relief_read_total: Option<f64>,
 }
 
+impl FrameStats {
+    /// The reads' own estimates `[median, p99, total]` ([`FrameStats::relief_read_median`],
+    /// [`FrameStats::relief_read_p99`], [`FrameStats::relief_read_total`]), NaN where the frame
+    /// read no relief: the columns of the sweep's and the budget check's CSVs.
+    pub fn relief_reads_or_nan(&self) -> [f64; 3] {
+        [
+            self.relief_read_median,
+            self.relief_read_p99,
+            self.relief_read_total,
+        ]
+        .map(|v| v.unwrap_or(f64::NAN))
+    }
+}
+
 /// One rendered frame.
 #[derive(Clone, Debug)]
 pub struct Frame {
@@ -632,10 +646,10 @@ fn render_in_pool(
             &mut layers,
         );
         if let Some(e) = estimate {
-            let [median, p99] = read_quantiles(&e, &pl_image);
+            let [median, p99, total] = read_figures(&e, &pl_image);
             stats.relief_read_median = Some(median);
             stats.relief_read_p99 = Some(p99);
-            stats.relief_read_total = Some(read_total(&e, &pl_image));
+            stats.relief_read_total = Some(total);
         }
         for (b, img) in own_view {
             let intr_b = band_intr
@@ -685,30 +699,23 @@ fn render_in_pool(
 }
 
 /// The median and the 99th percentile of `estimate`'s magnitude over the pixels lit in
-/// `image` (0 with none).
-fn read_quantiles(estimate: &[f64], image: &[f64]) -> [f64; 2] {
-    let mut lit: Vec<f64> = estimate
-        .iter()
-        .zip(image)
-        .filter(|&(_, &v)| v > 0.0)
-        .map(|(&e, _)| e.abs())
-        .collect();
-    if lit.is_empty() {
-        [0.0; 2]
-    } else {
-        crate::stats::quantiles(&mut lit, [0.5, 0.99])
-    }
-}
-
-/// `estimate` (signed, relative per pixel) weighed by `image`: the relative error it puts on
-/// the image's sum (0 on a dark image).
-fn read_total(estimate: &[f64], image: &[f64]) -> f64 {
+/// `image`, and `estimate` (signed, relative per pixel) weighed by `image`: the relative
+/// error it puts on the image's sum (all 0 on a dark image).
+fn read_figures(estimate: &[f64], image: &[f64]) -> [f64; 3] {
     let (mut err, mut sum) = (0.0, 0.0);
+    let mut lit = Vec::new();
     for (&e, &v) in estimate.iter().zip(image) {
-        err += e * v;
-        sum += v;
+        if v > 0.0 {
+            lit.push(e.abs());
+            err += e * v;
+            sum += v;
+        }
     }
-    if sum > 0.0 { err / sum } else { 0.0 }
+    if lit.is_empty() {
+        return [0.0; 3];
+    }
+    let [median, p99] = crate::stats::quantiles(&mut lit, [0.5, 0.99]);
+    [median, p99, err / sum]
 }
 
 /// The cloud's image through `view`: projection of the midpoints (and the vertices, for
@@ -1073,11 +1080,11 @@ mod tests {
         // Two lit pixels off by +10 % and -10 % of themselves, the second three times the
         // first: the frame's total is off by (0.1 - 0.3) / 4; the dark pixel's estimate
         // weighs nothing.
-        let total = read_total(&[0.1, -0.1, 0.5], &[1.0, 3.0, 0.0]);
+        let [_, _, total] = read_figures(&[0.1, -0.1, 0.5], &[1.0, 3.0, 0.0]);
         assert!((total + 0.05).abs() < 1e-15, "{total}");
-        assert_eq!(read_total(&[0.5], &[0.0]), 0.0);
+        assert_eq!(read_figures(&[0.5], &[0.0])[2], 0.0);
         // The quantiles take the magnitudes, over the lit pixels alone.
-        let [median, p99] = read_quantiles(&[-0.2, 0.1, 0.9], &[1.0, 1.0, 0.0]);
+        let [median, p99, _] = read_figures(&[-0.2, 0.1, 0.9], &[1.0, 1.0, 0.0]);
         assert!(median >= 0.1 && p99 > 0.15 && p99 <= 0.2, "{median} {p99}");
     }
 }

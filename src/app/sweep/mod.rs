@@ -745,13 +745,9 @@ pub fn run(
                 (Err(e), _) | (_, Some(Err(e))) => e.clone(),
                 _ => String::new(),
             };
-            let (est_relief_median, est_relief_p99, est_relief_total) = match &frames[k] {
-                Some(Ok(f)) => (
-                    f.stats.relief_read_median.unwrap_or(f64::NAN),
-                    f.stats.relief_read_p99.unwrap_or(f64::NAN),
-                    f.stats.relief_read_total.unwrap_or(f64::NAN),
-                ),
-                _ => (f64::NAN, f64::NAN, f64::NAN),
+            let [est_relief_median, est_relief_p99, est_relief_total] = match &frames[k] {
+                Some(Ok(f)) => f.stats.relief_reads_or_nan(),
+                _ => [f64::NAN; 3],
             };
             let (e, kept, samples) = match &frames[k] {
                 Some(Ok(f)) => (

@@ -1706,8 +1706,8 @@ fn quadratic(table: &[f64; TABLE], x: f64) -> f64 {
 /// about `fine + (fine - coarse) / 3`, so `fine` is off by `READ_ESTIMATE_SCALE (coarse -
 /// fine) / fine` of itself. Its magnitude is the pixel's estimate (the refinement's test,
 /// the frame's median and p99); its sign is kept for the frame's signed sum
-/// ([`crate::render::FrameStats::relief_read_total`], which measured no estimate of the
-/// frame's total on the streams' frames). Where no read is lit but some of the
+/// ([`crate::render::FrameStats::relief_read_total`], which on the streams' frames did not
+/// track the measured total). Where no read is lit but some of the
 /// coarse grid's would be, -1 (all the light missed). It cannot see a pixel none of whose
 /// reads is lit (a sliver of light between shadows): across NRHO row 493's terminator (2 x 2
 /// reads a pixel) 414 of 10,085 lit pixels, each about 1 % of the median pixel's light, are

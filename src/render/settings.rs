@@ -173,7 +173,7 @@ pub struct Settings {
     /// edge crosses may get (1: never; 2, 4, 8: a pixel whose reads disagree, by their own
     /// estimate above [`super::footprint::REFINE_ABOVE`] or light and shadow among them, is
     /// read again twice as finely while its light still moves), and the factor of the lines
-    /// of sight a limb pixel casts (8 x 8 times it, at most 32 x 32).
+    /// of sight a limb pixel casts (8 x 8 times it, at most 64 x 64: `footprint::MAX_CAST`).
     pub relief_refine: u32,
     /// Under `MapFilter::Pixel` and `Relief`: the largest spacing of a pixel's map reads
     /// [texels] (0.5; 0.0625 to 1). Finer reads lower the median a textured frame keeps

@@ -50,6 +50,10 @@ enum Command {
         /// The reference's deepest subdivision (halvings of a pixel's side).
         #[arg(long, default_value_t = 10)]
         max_depth: u32,
+        /// Points per pixel side of the reference's lattice over the cells near an edge whose
+        /// rays agree (0: none; see `ReferenceSettings::lattice_per_px`).
+        #[arg(long, default_value_t = 64)]
+        lattice: u32,
         /// Which reference: `auto` is the exact one for a lone mesh body through an
         /// undistorted camera (polygons clipped, no rays), else the cubature.
         #[arg(long, value_enum, default_value = "auto")]
@@ -140,6 +144,9 @@ enum Command {
         tolerance: f64,
         #[arg(long, default_value_t = 8)]
         max_depth: u32,
+        /// As `render --lattice`.
+        #[arg(long, default_value_t = 64)]
+        lattice: u32,
         /// Which reference (as `render --reference-method`).
         #[arg(long, value_enum, default_value = "auto")]
         reference_method: optistim::raycast::reference::ReferenceMethod,
@@ -352,6 +359,7 @@ fn run() -> anyhow::Result<()> {
             reference,
             tolerance,
             max_depth,
+            lattice,
             reference_method,
         } => {
             let cfg = config::load(&scene)?;
@@ -360,6 +368,7 @@ fn run() -> anyhow::Result<()> {
                     optistim::raycast::reference::ReferenceSettings {
                         tolerance,
                         max_depth,
+                        lattice_per_px: lattice,
                         threads: cfg.settings.threads,
                         ..Default::default()
                     },
@@ -495,6 +504,7 @@ fn run() -> anyhow::Result<()> {
             out,
             tolerance,
             max_depth,
+            lattice,
             reference_method,
             render,
             keep_frames,
@@ -503,6 +513,7 @@ fn run() -> anyhow::Result<()> {
             let reference = optistim::raycast::reference::ReferenceSettings {
                 tolerance,
                 max_depth,
+                lattice_per_px: lattice,
                 ..Default::default()
             };
             let report = app::verify_budget::run(

@@ -508,7 +508,9 @@ fn reference_of(
 /// DEM that tilts the normals only is dark past the shape's own terminator, where a normal
 /// leaning towards the Sun had lit it. 6: the terrain's shadow rays are tested at the DEM's
 /// creases too, where a grazing ray dips below a ridge between two of its shortest steps.
-pub(crate) const REFERENCE_MODEL: u32 = 6;
+/// 7: the cells near an edge whose rays agree are read by a lattice
+/// (`ReferenceSettings::lattice_per_px`), which does not lose the slivers between the rays.
+pub(crate) const REFERENCE_MODEL: u32 = 7;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

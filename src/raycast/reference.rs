@@ -33,7 +33,7 @@
 //!   go: on a 40 x 64 window of Artemis I row 882's grazing limb (lit ridge tops 0.01-0.05
 //!   px across) the reference was 6.5e-4 of the window's light dark (9.3e-3 of its limb
 //!   pixels') against brute-force lattices of 64, 128 and 256 points a pixel side, which
-//!   agree to 1e-6, and 8 and 10 halvings agreed on it; with the lattice, 7e-6. A lattice
+//!   agree to 1e-6, and 8 and 10 halvings agreed on it; with the lattice, 6e-6. A lattice
 //!   catches a sliver in proportion to its width, so its errors change sign from sliver to
 //!   sliver.
 //!
@@ -89,7 +89,7 @@ pub struct ReferenceSettings {
     /// Points per pixel side of the lattice that reads a cell of a pixel near an edge whose
     /// rays and corners all agree (all lit, all dark): where one of the lattice's midpoints
     /// over the cell disagrees, the cell takes their mean instead of its rule (0: no lattice,
-    /// the reference before model 7). 32 left 9.6e-5 of 882's window dark, 64 7e-6.
+    /// the reference before model 7). 32 left 9.7e-5 of 882's window dark, 64 6e-6.
     pub lattice_per_px: u32,
     /// Most cells accepted in one pixel: past it the pixel's remaining cells are accepted
     /// as they are (and counted unconverged), so that no pixel runs away.
@@ -260,8 +260,9 @@ fn corners_disagree(tracer: &Tracer, c: &Cell, lit: bool) -> bool {
 /// is caught in proportion to its width and its error changes sign from sliver to sliver
 /// instead of adding up; where every point agrees with the rays, the mean is the rule's
 /// value but for the rule's better accuracy on smooth light, which is kept. Reading every
-/// such cell by its lattice instead put a window's total 5.7e-5 off where the rule's was
-/// right to 6e-6 (rows 448-511 of 882): the lattice's midpoints are the poorer rule where
+/// such cell by its lattice instead (32 a pixel) put the pixels one to three from 882's limb
+/// (rows 448-511) +1.5e-4, +1.6e-5 and +2.2e-5 of their light off a brute force, where
+/// keeping the rule left -2.2e-5, +5e-6 and +6e-6: the midpoints are the poorer rule where
 /// the light does not step.
 fn lattice_mean(tracer: &Tracer, c: &Cell, points: usize, lit: bool) -> Option<f64> {
     let step = c.side / points as f64;

@@ -51,7 +51,10 @@
 //! where it misses). Interpolating them there, or one read at the footprint's level, put the
 //! lunar limb's last pixels 2.8 % low on the textured Hapke Moon at 71,000 km, and its total
 //! 2e-4 low. Those pixels (about 2,000 there) and the second Hapke evaluation of every single
-//! pixel cost the NRHO's far frames 13-15 ms (`docs/performance.md`).
+//! pixel cost the NRHO's far frames 13-15 ms (`docs/performance.md`). Under the relief, on a
+//! sphere, the pixels the limb cuts are read evenly in `mu_shape` along strips across the
+//! limb instead, where the light per unit of image grows without bound
+//! ([`Step::limb_pixel`]).
 //!
 //! Hapke's ratio, which depends on the geometry weakly (a ratio of two BRDFs at the same
 //! angles), is tabulated per block over the map's range of `w` at the angles of the block's
@@ -224,7 +227,9 @@ const CAST: usize = 8;
 /// about 1.5 times the footprint step on those far frames, whose limb pixels are most of
 /// their reads. A lattice jittered within its cells (deterministically) was no better: it
 /// raised the p99 of rows 0, 712 and 356 by 3e-3 to 5e-3 (`docs/performance.md`, "The
-/// limb's lines of sight").
+/// limb's lines of sight"). Under the relief, on a sphere, the pixels the limb cuts are
+/// now read evenly in `mu_shape` instead ([`Step::limb_pixel`]), which that tail does not
+/// reach.
 const MAX_CAST: usize = 64;
 
 /// Under `MapFilter::Relief` with `relief_refine` above 1: a pixel whose reads' own error
@@ -692,6 +697,9 @@ impl Step<'_> {
         let k = CAST as f64;
         if let Some(shading) = self.shading {
             let cast = (CAST * self.refine).min(MAX_CAST);
+            if self.limb_pixel(band, (i, r, v), shading, cast) {
+                return;
+            }
             let k = cast as f64;
             // The reads on a `cast x cast` lattice over the pixel (`None` where the line of
             // sight misses the body), a shadow's edge placed between them as over a block
@@ -773,6 +781,123 @@ impl Step<'_> {
                 img[r * w + i] *= self.exact(m, &p);
             }
         }
+    }
+
+    /// `q = 1 - b^2 / R^2` of the line of sight through image point `(u, v)` [px], `b` its
+    /// distance from the centre of the sphere of radius `radius_m`: the sphere's `mu_shape^2`
+    /// where the line meets it, negative beyond the limb (and behind the camera).
+    fn limb_q(&self, radius_m: f64, u: f64, v: f64) -> f64 {
+        let dir = super::depth::line_of_sight(self.intrinsics, self.pose, u, v);
+        let cam = self.pose.camera_position_m;
+        let along = cam.dot(dir);
+        if along >= 0.0 {
+            return -1.0;
+        }
+        1.0 - (cam.length_squared() - along * along).max(0.0) / (radius_m * radius_m)
+    }
+
+    /// Pixel `(i, r)` (band row; `v` its centre's image row) under the relief where the
+    /// limb of a sphere the relief does not displace cuts it or comes within a quarter of its
+    /// `mu_shape^2`: read evenly in `mu_shape`, not over the image, and false (nothing done)
+    /// elsewhere.
+    ///
+    /// The light per unit of image, `f_r mu0 mu / mu_shape` (Eq. 37), grows as the inverse
+    /// square root of the distance from the limb where the relief faces the camera and hides
+    /// nothing from it, so a lattice over the image integrates it right on average but with
+    /// a heavy tail: a line of sight next to the limb weighs as much as the rest of its pixel.
+    /// On Artemis I row 882 (155 deg, the Sun 6 deg and the camera 2-4 deg above the LOLA
+    /// relief at the limb) three pixels of the 64 x 64 lattice's carried +1.8e-4 of the
+    /// frame's total, one of them 3.6 times its reference. Along `cast` strips across the
+    /// pixel (the axis on which `q = mu_shape^2` changes most), `x(mu)` where `q(x) = mu^2`
+    /// turns `int g dx` into `int g (2 mu / q'(x)) dmu`, whose `g mu` is bounded; `cast`
+    /// reads a strip, each with its own shadows and no edges placed between them, at the
+    /// midpoints of even steps of `mu`, each weighing its share of the pixel. The map `x(mu)`
+    /// must be `q`'s own along the strip (here the parabola through `q` at its ends and
+    /// middle, from the lines of sight there: over a pixel `q` is smooth to a part in the
+    /// disk's radius in pixels, cubed): interpolated bilinearly from the pixel's corners, `q`
+    /// is off by a few 1e-7 next to the limb, where `mu^2` is that small, and the same reads
+    /// on the reference's integrand came out 4.5e-3 of the 1,622 limb pixels' light dark,
+    /// against 3.6e-6 of the frame with `x(mu)` from `q` itself (the branch `exp/limb-882`,
+    /// `exp_mu_even_limb`, 16 strips of 64 reads).
+    fn limb_pixel(
+        &self,
+        band: &mut Band,
+        (i, r, v): (usize, usize, f64),
+        shading: (&Relief, SelfShadowing),
+        cast: usize,
+    ) -> bool {
+        let Shape::Sphere(sphere) = self.shape else {
+            return false;
+        };
+        if shading.0.displaces() {
+            return false;
+        }
+        let radius = sphere.radius_m;
+        let (u0, v0) = (i as f64, v - 0.5);
+        let q = |x: f64, y: f64| self.limb_q(radius, u0 + x, v0 + y);
+        let [q00, q10, q01, q11] = [q(0.0, 0.0), q(1.0, 0.0), q(0.0, 1.0), q(1.0, 1.0)];
+        let (lo, hi) = [q00, q10, q01, q11]
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        if !(hi > 0.0 && lo < 0.25 * hi) {
+            return false;
+        }
+        let along_x = ((q10 - q00) + (q11 - q01)).abs() >= ((q01 - q00) + (q11 - q10)).abs();
+        let strips = cast;
+        let wt = 1.0 / strips as f64;
+        band.reads.clear();
+        band.relief.clear();
+        band.lit.clear();
+        let mut read_rad = None;
+        for it in 0..strips {
+            let t = (it as f64 + 0.5) * wt;
+            let at = |x: f64| if along_x { (x, t) } else { (t, x) };
+            let qx = |x: f64| {
+                let (a, b) = at(x);
+                q(a, b)
+            };
+            let strip = Parabola::through(qx(0.0), qx(0.5), qx(1.0));
+            let (m0, m1) = (strip.at(0.0).max(0.0).sqrt(), strip.at(1.0).max(0.0).sqrt());
+            let (lo, hi) = (m0.min(m1), m0.max(m1));
+            if hi <= 0.0 {
+                continue;
+            }
+            let step = (hi - lo) / cast as f64;
+            for j in 0..cast {
+                let mu = lo + (j as f64 + 0.5) * step;
+                let Some((x, slope)) = strip.where_equal(mu * mu) else {
+                    continue;
+                };
+                // The read's share of the pixel: its strip's width times `dx = 2 mu dmu / q'`.
+                let weight = wt * 2.0 * mu * step / slope.abs().max(1e-300);
+                let (a, b) = at(x);
+                let p = self.probe(u0 + a, v0 + b);
+                if !p.hit {
+                    continue;
+                }
+                read_rad.get_or_insert(p.footprint_rad / cast as f64);
+                let mut read = self.relief_read(shading.0, shading.1, (p.lon, p.lat), None);
+                read.k *= weight;
+                read.smooth *= weight;
+                band.reads.push((p.lon, p.lat));
+                band.lit.push(read.lit());
+                band.relief.push(read);
+            }
+        }
+        // `slots` 1: the weights are shares of the whole pixel.
+        let got = self.relief_pixel(band, read_rad.unwrap_or(0.0), None, 1);
+        if got.read {
+            self.set_relief_pixel(band, &got, i, r);
+        } else {
+            let w = band.width;
+            let p = self.probe(i as f64 + 0.5, v);
+            for (m, img) in band.pixels.iter_mut().enumerate() {
+                img[r * w + i] *= self.exact(m, &p);
+            }
+        }
+        true
     }
 
     /// The mean of `f_r(a) / f_r(s_ref)` at `local`'s angles over reads of scale `a` whose
@@ -1687,6 +1812,55 @@ fn cell_share(m: f64, gx: f64, gy: f64) -> f64 {
     ((g(alpha + 0.5 * beta) - g(alpha - 0.5 * beta)) / beta).clamp(0.0, 1.0)
 }
 
+/// `q(x) = c0 + c1 x + c2 x^2` on `[0, 1]`: a limb pixel's `mu_shape^2` along a strip
+/// ([`Step::limb_pixel`]).
+struct Parabola {
+    c0: f64,
+    c1: f64,
+    c2: f64,
+}
+
+impl Parabola {
+    /// Through `(0, q0)`, `(1/2, qh)` and `(1, q1)`.
+    fn through(q0: f64, qh: f64, q1: f64) -> Parabola {
+        let c2 = 2.0 * (q1 - 2.0 * qh + q0);
+        Parabola {
+            c0: q0,
+            c1: q1 - q0 - c2,
+            c2,
+        }
+    }
+
+    fn at(&self, x: f64) -> f64 {
+        self.c0 + x * (self.c1 + x * self.c2)
+    }
+
+    /// The `x` in `[0, 1]` where `q(x) = target`, and `q'(x)` there; None where there is
+    /// none. The root is taken in the form without cancellation; `q` is monotonic on a
+    /// strip of a limb pixel (its axis is the one `q` changes most along, and the sphere's
+    /// centre is far).
+    fn where_equal(&self, target: f64) -> Option<(f64, f64)> {
+        let d = target - self.c0;
+        let x = if self.c2.abs() * 1e12 < self.c1.abs() {
+            d / self.c1
+        } else {
+            let disc = self.c1 * self.c1 + 4.0 * self.c2 * d;
+            if disc < 0.0 {
+                return None;
+            }
+            let root = disc.sqrt();
+            let den = self.c1 + self.c1.signum() * root;
+            if den == 0.0 {
+                return None;
+            }
+            2.0 * d / den
+        };
+        (-1e-9..=1.0 + 1e-9)
+            .contains(&x)
+            .then(|| (x.clamp(0.0, 1.0), self.c1 + 2.0 * self.c2 * x))
+    }
+}
+
 /// The table read at node position `x` in `[0, TABLE - 1]` by the parabola through the
 /// nearest node and its two neighbours. Linear interpolation between nodes, which put the chord
 /// of Hapke's ratio (convex in `w`) above it, left the tabulated pixels 1.6e-3 too bright on
@@ -1939,6 +2113,54 @@ mod tests {
         assert!(Shadowed::of((&Some(read(1.0)), &0.4)).is_none());
         assert!(Shadowed::of((&Some(read(0.0)), &0.0)).is_none());
         assert!(Shadowed::of((&None, &0.0)).is_none());
+    }
+
+    /// A limb pixel's strip: the parabola through three values of `q` finds where `q` is
+    /// `mu^2` and its slope there, rising or falling, curved or straight, at the limb
+    /// (`q` 0) and 1e-12 from it; and reads evenly in `mu` over a strip the limb crosses
+    /// weigh up to the strip's length on the disk.
+    #[test]
+    fn a_strip_of_a_limb_pixel_is_read_evenly_in_mu() {
+        for (c0, c1, c2) in [
+            (-2e-4, 3e-3, -1e-6),
+            (2.8e-3, -3e-3, -1e-6),
+            (1e-3, 2e-3, 0.0),
+            (0.5, 0.1, -0.01),
+        ] {
+            let p = Parabola { c0, c1, c2 };
+            let through = Parabola::through(p.at(0.0), p.at(0.5), p.at(1.0));
+            for x in [0.0, 1e-9, 0.3, 0.999] {
+                let target = p.at(x);
+                let (found, slope) = through.where_equal(target).unwrap();
+                assert!((through.at(found) - target).abs() <= 1e-15 + 1e-12 * target.abs());
+                assert!((slope - (c1 + 2.0 * c2 * found)).abs() < 1e-9 * c1.abs());
+            }
+            // Nothing outside the strip.
+            assert!(
+                through
+                    .where_equal(p.at(0.0).min(p.at(1.0)) - 1e-3)
+                    .is_none()
+            );
+            // The reads' weights add up to the strip's length where `q > 0`.
+            let (m0, m1) = (p.at(0.0).max(0.0).sqrt(), p.at(1.0).max(0.0).sqrt());
+            let (lo, hi) = (m0.min(m1), m0.max(m1));
+            let n = 4096;
+            let step = (hi - lo) / n as f64;
+            let length: f64 = (0..n)
+                .map(|j| {
+                    let mu = lo + (j as f64 + 0.5) * step;
+                    let (_, slope) = through.where_equal(mu * mu).unwrap();
+                    2.0 * mu * step / slope.abs()
+                })
+                .sum();
+            let on_disk = if p.at(0.0) < 0.0 || p.at(1.0) < 0.0 {
+                let root = through.where_equal(0.0).unwrap().0;
+                if p.at(0.0) < 0.0 { 1.0 - root } else { root }
+            } else {
+                1.0
+            };
+            assert!((length - on_disk).abs() < 1e-6, "{length} {on_disk}");
+        }
     }
 
     /// The share of a cell on one side of a line, against the areas drawn by hand.

@@ -339,7 +339,8 @@ fn pixel(
         // sliver of the other between them: a thin lune of light along the limb at high phase
         // loses its terminator side there (3e-3 of an edge pixel's light at 161 deg). Its
         // corners, where a straight edge crossing the cell shows first, are asked too.
-        if !must_cut && near_edge && c.depth < s.corner_depth && (lit == 0 || lit == 13) {
+        let agree = lit == 0 || lit == 13;
+        if !must_cut && near_edge && c.depth < s.corner_depth && agree {
             sum.rays += 4;
             must_cut = corners_disagree(tracer, &c, lit == 13);
         }
@@ -351,7 +352,6 @@ fn pixel(
             // it are kept: that loses slivers on average. A lattice's midpoints, whose mean
             // does not depend on what they find, lose almost none ([`lattice_mean`]).
             let points = (c.side * f64::from(s.lattice_per_px)).round() as usize;
-            let agree = lit == 0 || lit == 13;
             let value = if near_edge && !exhausted && agree && points > 1 {
                 sum.rays += (points * points) as u64;
                 lattice_mean(tracer, &c, points, lit == 13).unwrap_or(g3)

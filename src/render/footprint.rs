@@ -729,14 +729,7 @@ impl Step<'_> {
             }
             band.lattice.clear();
             let got = self.relief_pixel(band, read_rad.unwrap_or(0.0), None, cast * cast);
-            if got.read {
-                self.set_relief_pixel(band, &got, i, r);
-            } else {
-                let p = self.probe(i as f64 + 0.5, v);
-                for (m, img) in band.pixels.iter_mut().enumerate() {
-                    img[r * w + i] *= self.exact(m, &p);
-                }
-            }
+            self.set_cast_pixel(band, &got, (i, r, v));
             return;
         }
         let mut weights = 0.0;
@@ -888,8 +881,16 @@ impl Step<'_> {
         }
         // `slots` 1: the weights are shares of the whole pixel.
         let got = self.relief_pixel(band, read_rad.unwrap_or(0.0), None, 1);
+        self.set_cast_pixel(band, &got, (i, r, v));
+        true
+    }
+
+    /// Cast pixel `(i, r)` (band row; `v` its centre's image row) from its reads under the
+    /// relief ([`Step::relief_pixel`]), or, where none met the body, from the map at its
+    /// centre's line of sight.
+    fn set_cast_pixel(&self, band: &mut Band, got: &ReliefPixel, (i, r, v): (usize, usize, f64)) {
         if got.read {
-            self.set_relief_pixel(band, &got, i, r);
+            self.set_relief_pixel(band, got, i, r);
         } else {
             let w = band.width;
             let p = self.probe(i as f64 + 0.5, v);
@@ -897,7 +898,6 @@ impl Step<'_> {
                 img[r * w + i] *= self.exact(m, &p);
             }
         }
-        true
     }
 
     /// The mean of `f_r(a) / f_r(s_ref)` at `local`'s angles over reads of scale `a` whose

@@ -934,15 +934,16 @@ fn pixels_a_shadows_edge_crosses_are_read_again() {
 /// A flat DEM read over each pixel (`map_filter = "relief"`) against the frame without it
 /// (the quadrangles' closed form, the map read over each pixel) and the converged
 /// reference, at 60 and 110 deg of phase. Inside the disk the two renders differ only where
-/// the pixels are read: where the blocks of pixels split to single ones (most of this small
-/// disk), the relief's reads lie where their own lines of sight meet the surface, the map's
-/// are interpolated from the pixel's corners (5.6e-4 and 1.8e-3 apart at the median pixel;
-/// 3e-5 when both were interpolated), and against the reference the relief's are the closer
-/// (median 2.9e-3 and 4.2e-3 against 3.4e-3 and 7.1e-3). The pixels near the terminator,
-/// taken from their reads alone (`A_sun A_cam cos(eps) Omega / d_sun^2` times their mean
-/// light), are checked against the reference, where they are better than the quadrangles'
-/// gridding: p99 0.34 and 0.21 against 1.28 and 1.91. Their 2 x 2 reads leave totals of
-/// 7.8e-4 and 4.0e-4 (the quadrangles' 9.0e-5 and 1.6e-4).
+/// the pixels are read: the relief's reads lie where their own lines of sight meet the
+/// surface, the map's are interpolated from the pixel's or the block's corners (9.5e-4 and
+/// 2.7e-3 apart at the median pixel; 5.6e-4 and 1.8e-3 when the relief's blocks were
+/// interpolated too, 3e-5 when both were), and against the reference the relief's are the
+/// closer (median 2.6e-3 and 3.9e-3 against 3.4e-3 and 7.1e-3: the two differ by less than
+/// the map's reads' own error). The pixels near the terminator, taken from their reads alone
+/// (`A_sun A_cam cos(eps) Omega / d_sun^2` times their mean light), are checked against the
+/// reference, where they are better than the quadrangles' gridding: p99 0.32 and 0.21
+/// against 1.28 and 1.91. Their 2 x 2 reads leave totals of 8.8e-4 and 3.5e-4 (7.8e-4 and
+/// 4.0e-4 with the blocks interpolated; the quadrangles' 9.0e-5 and 1.6e-4).
 #[test]
 fn a_flat_relief_read_over_each_pixel_is_the_frame_without_it() {
     use optistim::fidelity::metrics::frame_error;
@@ -978,11 +979,81 @@ fn a_flat_relief_read_over_each_pixel_is_the_frame_without_it() {
         eprintln!(
             "phase {phase:.0} deg\nrelief against pixel: {same:?}\nrelief: {relief:?}\npixel: {pixel:?}"
         );
-        assert!(same.median < 2.5e-3, "{same:?}");
+        assert!(same.median < 3e-3, "{same:?}");
         assert!(relief.p99 < 0.5 * pixel.p99, "{relief:?} {pixel:?}");
         assert!(relief.median <= pixel.median, "{relief:?} {pixel:?}");
         assert!(relief.total.abs() < 1e-3, "{relief:?}");
     }
+}
+
+/// Artemis I row 1146 (`tests/data/artemis_1146.toml`: 13,350 km, 134 deg of phase, the
+/// LROC map and the LOLA relief read over each pixel as the budget plans the frame).
+fn artemis_1146() -> optistim::config::Config {
+    optistim::config::load(Path::new("tests/data/artemis_1146.toml"))
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The relief's reads integrate each pixel without a lean. Its light is concave where it is
+/// lit and kinked where a facet turns from the Sun; the midpoint rule over a pixel's reads is
+/// bright on the one and dark on the other, and the pixels holding the kinks are read again,
+/// so the frame kept the concave rest's bright error. Artemis I row 1146 without the relief's
+/// shadows (so that the reads' rule is all that differs): the frame at the shipped spacing
+/// of the reads against one with reads 8 times as fine, +1.58e-4 of the light with the
+/// midpoint rule, its median pixel +1.3e-5; -1.9e-7 and +4.5e-6 with the reads' weights
+/// (`render::footprint`'s `end_weight`). With the shadows, against the reference: +1.45e-4
+/// before, +8.3e-6 now (`docs/performance.md`, "The relief's reads leaned bright").
+#[test]
+fn the_reliefs_reads_integrate_each_pixel_without_a_lean() {
+    use optistim::render::settings::SelfShadowing;
+    let mut cfg = artemis_1146();
+    cfg.settings.self_shadowing = SelfShadowing::Off;
+    let (shipped, a) = total(&cfg);
+    cfg.settings.map_read_spacing_texels /= 8.0;
+    let (fine, b) = total(&cfg);
+    let off = shipped / fine - 1.0;
+    // The median pixel leans no way either.
+    let mut signed: Vec<f64> = a
+        .iter()
+        .zip(&b)
+        .filter(|&(_, &f)| f > 1e-3 * fine / b.len() as f64)
+        .map(|(x, f)| x / f - 1.0)
+        .collect();
+    signed.sort_by(f64::total_cmp);
+    let median = signed[signed.len() / 2];
+    eprintln!(
+        "shipped against reads 8 times as fine: total {off:+.2e}, median pixel {median:+.2e} over {}",
+        signed.len()
+    );
+    assert!(signed.len() > 20_000, "{}", signed.len());
+    assert!(off.abs() < 4e-5, "{off:+.2e}");
+    assert!(median.abs() < 1e-5, "{median:+.2e}");
+}
+
+/// A flat relief near the terminator keeps the frame's light: there a pixel is its reads'
+/// mean light times its solid angle's (`A_sun A_cam cos(eps) Omega / d_sun^2`), with no
+/// ratio to cancel where the reads lie. Interpolated from a block's corners they lay up to
+/// the blocks' tolerance off their lines of sight, which moved `mu0` one way across the
+/// crescent: Artemis I row 1146 with its DEM flattened, against the reference, total
+/// +3.1e-5 and median 2.8e-4 (with a uniform map +5.3e-5, those pixels +1.2e-4 at the
+/// median); each read placed by its own line of sight, +1.3e-5 and 1.1e-4.
+#[test]
+fn a_flat_relief_near_the_terminator_keeps_the_frames_light() {
+    use optistim::fidelity::metrics::frame_error;
+    use optistim::raycast::reference::{self, ReferenceSettings};
+    let mut cfg = artemis_1146();
+    let dem = Map::from_values(Path::new("flat"), 8, 4, vec![0.0; 32], &Encoding::default());
+    cfg.scene.body.relief = Some(optistim::body::Relief::new(dem.unwrap(), R_MOON, false).unwrap());
+    let (_, pl) = total(&cfg);
+    let settings = ReferenceSettings {
+        tolerance: 1e-4,
+        max_depth: 6,
+        ..Default::default()
+    };
+    let r = reference::render(&cfg.scene, &cfg.pose, &settings).unwrap();
+    let e = frame_error(&pl, &r.frame.pl, 1024, 1024);
+    eprintln!("flat relief at 134 deg: {e:?}, reference {:?}", r.report);
+    assert!(e.total.abs() < 2.2e-5, "{e:?}");
+    assert!(e.median < 1.6e-4, "{e:?}");
 }
 
 /// `map_filter = "relief"` reads an albedo map and an undisplaced relief over each pixel: a
@@ -1035,8 +1106,9 @@ fn the_relief_per_pixel_is_refused_where_it_does_not_apply() {
     // Its quadrangles integrate the smooth shape, so the Lambert sphere's closed form
     // (`integration = "exact"`) applies under `relief`, and not under `pixel`, whose
     // quadrangles carry the DEM's normals. On a flat DEM it is the frame without one, to
-    // where the two read the map: the relief's single pixels where their lines of sight
-    // meet the surface, the map's interpolated (3e-6 of the total apart).
+    // where the two read the map: the relief's reads where their lines of sight meet the
+    // surface, the map's interpolated (1.3e-5 of the total apart; 3e-6 when only the
+    // relief's single pixels were placed so).
     undisplaced.settings.integration = optistim::render::Integration::Exact;
     let flat = renderer
         .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)
@@ -1048,7 +1120,7 @@ fn the_relief_per_pixel_is_refused_where_it_does_not_apply() {
         .render(&without.scene, &without.pose, &without.settings)
         .unwrap();
     let (a, b) = (flat.pl.iter().sum::<f64>(), smooth.pl.iter().sum::<f64>());
-    assert!(b > 0.0 && ((a - b) / b).abs() < 1e-5, "{a} {b}");
+    assert!(b > 0.0 && ((a - b) / b).abs() < 2e-5, "{a} {b}");
     undisplaced.settings.map_filter = optistim::render::MapFilter::Pixel;
     let e = renderer
         .render(&undisplaced.scene, &undisplaced.pose, &undisplaced.settings)

@@ -42,7 +42,7 @@
 //! relief's shadows, of the footprint: [`Step::tolerance_texels`]) has its reads'
 //! longitude and latitude interpolated. A block that fails is split in four, down to single
 //! pixels, interpolated from the lines of sight through their own four corners
-//! ([`Step::own_corners`]; under the relief, each read of a single pixel where its own line
+//! ([`Step::own_corners`]; under the relief, each read of every block where its own line
 //! of sight meets the shape, [`Placement`]). A single pixel whose neighbours' or corners'
 //! lines of sight miss the body (the limb), or whose interpolation is off by a fiftieth of
 //! its footprint (near the limb, where the surface a pixel sees stretches to
@@ -557,8 +557,12 @@ impl Step<'_> {
         // The first map's light and the smooth shape's over the coarser grid.
         let (mut coarse_light, mut coarse_smooth, mut coarse_count) = (0.0, 0.0, 0usize);
         let mut near_night = false;
+        // The reads' weights where they cover the grid; else (reads left out beyond the
+        // terminator, or not on a grid) each read counts once.
+        let grid = grid.filter(|&(ns, nt)| ns * nt == band.relief.len());
         for (j, (read, &(lon, lat))) in band.relief.iter().zip(&band.reads).enumerate() {
-            smooth += read.smooth;
+            let weight = if grid.is_some() { band.weights[j] } else { 1.0 };
+            smooth += weight * read.smooth;
             near_night |= read.seen && read.mu0_shape < MU0_ABSOLUTE;
             let share = band.lit[j];
             let f_ref = if read.k > 0.0 && share > 0.0 && self.linear {
@@ -578,7 +582,7 @@ impl Step<'_> {
                 } else {
                     0.0
                 };
-                band.sums[m] += light;
+                band.sums[m] += weight * light;
                 band.squares[m] += a / self.s_ref;
                 if m == 0 && coarse {
                     coarse_light += light;
@@ -972,6 +976,9 @@ struct Band<'a> {
     reads: Vec<(f64, f64)>,
     relief: Vec<ReliefRead>,
     lit: Vec<f64>,
+    /// Each read's weight in its pixel's sums where they lie on a grid over it
+    /// ([`end_weight`]).
+    weights: Vec<f64>,
     crossings: Vec<f64>,
     /// A block's reads on one lattice, row by row (`None` for the pixels it leaves as they
     /// are), their map coordinates and lit shares ([`Step::read_lattice`]).
@@ -1004,18 +1011,22 @@ impl Band<'_> {
     }
 
     /// A pixel's reads from the lattice (`lw` reads wide), `(ns, nt)` of them from column
-    /// `ca` and row `rb`, into `reads`, `lit` and `relief` ([`Step::relief_pixel`]'s input).
+    /// `ca` and row `rb`, into `reads`, `lit`, `relief` and `weights` ([`Step::relief_pixel`]'s
+    /// input), the reads not taken (`None`: beyond the terminator) left out of all four. (Left
+    /// out of `relief` only, they had shifted the others' places and lit shares against it.)
     fn take_reads(&mut self, lw: usize, (ca, rb): (usize, usize), (ns, nt): (usize, usize)) {
         self.reads.clear();
         self.relief.clear();
         self.lit.clear();
+        self.weights.clear();
         for b in 0..nt {
             for a in 0..ns {
                 let q = (rb + b) * lw + ca + a;
-                self.reads.push(self.lattice_at[q]);
-                self.lit.push(self.lattice_lit[q]);
                 if let Some(read) = &self.lattice[q] {
+                    self.reads.push(self.lattice_at[q]);
+                    self.lit.push(self.lattice_lit[q]);
                     self.relief.push(*read);
+                    self.weights.push(end_weight(a, ns) * end_weight(b, nt));
                 }
             }
         }
@@ -1279,16 +1290,20 @@ impl Step<'_> {
             c[3].local.mu0,
         ];
         let (lon, lat, mu0) = placed.flatten().unwrap_or((lon, lat, mu0));
-        // Under the relief a single pixel's reads are each placed by their own line of sight
-        // ([`Placement`]): the corners' bilinear function, though checked at the pixel's
-        // centre, still bent the reads of a pixel near the limb. (A relief read's shadow
-        // rays cost ten times its line of sight; a map read alone is cheaper than one, and
-        // the map's reads stay interpolated: on the NRHO's far frames under the planner's
-        // `pixel` rungs, 1.3 times the frame.)
+        // Under the relief every read is placed by its own line of sight ([`Placement`]).
+        // The corners' bilinear function, though checked at the block's centre, still bent
+        // the reads of a pixel near the limb; and it missed where they lie by up to the
+        // tolerance, which near the terminator, where a pixel is its reads' mean light
+        // alone ([`Step::absolute_scale`]), moved `mu0` one way: on Artemis I row 1146
+        // (13,350 km, 134 deg) with the relief flattened, those pixels were +1.2e-4 at the
+        // median and the frame +5.3e-5 (now +4.5e-6). A relief read's shadow rays cost ten
+        // times its line of sight (that frame's footprint step took no longer); a map read
+        // alone is cheaper than one, and the map's reads stay interpolated: on the NRHO's
+        // far frames under the planner's `pixel` rungs, 1.3 times the frame.
         let place = Placement {
             lon,
             lat,
-            sight: (size == 1 && self.shading.is_some()).then_some((fx, fy, 1.0)),
+            sight: self.shading.is_some().then_some((fx, fy, n)),
         };
         // How much `mu0` changes across a pixel of the block (at most).
         let mu0_per_px = (mu0.iter().fold(f64::MIN, |a, &b| a.max(b))
@@ -1593,10 +1608,9 @@ struct BlockGeometry {
 
 /// Where a block's reads lie on the map, at block coordinates `(s, t)` (0 at the top-left
 /// pixel's centre, 1 a block's side on): bilinear in the longitudes and latitudes at the
-/// block's corners, or, for a single pixel under the relief (`sight`: the image point of
-/// `(0, 0)` and the block's side [px]), where each read's own line of sight meets the
-/// shape ([`Step::sight`]; the bilinear place where it misses, a ring's read beyond the
-/// limb).
+/// block's corners, or, under the relief (`sight`: the image point of `(0, 0)` and the
+/// block's side [px]), where each read's own line of sight meets the shape ([`Step::sight`];
+/// the bilinear place where it misses, a ring's read beyond the limb).
 #[derive(Clone, Copy)]
 struct Placement {
     lon: [f64; 4],
@@ -1810,6 +1824,38 @@ fn cell_share(m: f64, gx: f64, gy: f64) -> f64 {
         }
     };
     ((g(alpha + 0.5 * beta) - g(alpha - 0.5 * beta)) / beta).clamp(0.0, 1.0)
+}
+
+/// The weight of read `k` of `n` at the midpoints of `n` equal cells along a pixel's side
+/// (their mean is 1): the midpoint rule with the Euler-Maclaurin term at its ends,
+/// `h^2 / 24 (f'(b) - f'(a))`, the difference of slopes taken as `n h` times the reads'
+/// mean second difference. Three reads take 3/8, 1/4, 3/8 of the side (the open Maclaurin
+/// rule); more, `1 + c, 1 - c, 1, ..., 1, 1 - c, 1 + c` with `c = n / (24 (n - 2))`.
+/// Exact for cubics, positive, and unbiased over a kink of the light
+/// that falls anywhere between the reads (its mean over the kink's place is a quadratic).
+///
+/// The midpoint rule alone leaned. The relief's light is concave where it is lit (the product
+/// of `mu0` and `mu` as the slope tilts towards one and away from the other) and kinked
+/// where a facet turns from the Sun; summed over the frame the two cancel, but the pixels
+/// holding the kinks are read again ([`Step::refine`]) and the concave rest kept its bright
+/// error: Artemis I row 1146 (13,350 km, 134 deg) +1.45e-4 of the frame's light against its
+/// reference (+1.37e-4 without the relief's shadows, -7e-6 with reads 8 times as fine), now
+/// +8.3e-6; its median 6.0e-4 -> 2.7e-4.
+fn end_weight(k: usize, n: usize) -> f64 {
+    if n < 3 {
+        return 1.0;
+    }
+    let c = n as f64 / (24.0 * (n - 2) as f64);
+    if n == 3 {
+        return if k == 1 { 1.0 - 2.0 * c } else { 1.0 + c };
+    }
+    if k == 0 || k + 1 == n {
+        1.0 + c
+    } else if k == 1 || k + 2 == n {
+        1.0 - c
+    } else {
+        1.0
+    }
 }
 
 /// `q(x) = c0 + c1 x + c2 x^2` on `[0, 1]`: a limb pixel's `mu_shape^2` along a strip
@@ -2033,6 +2079,7 @@ pub fn apply_maps(
                 reads: Vec::with_capacity(CAST * CAST),
                 relief: Vec::with_capacity(CAST * CAST),
                 lit: Vec::with_capacity(CAST * CAST),
+                weights: Vec::with_capacity(CAST * CAST),
                 crossings: Vec::new(),
                 lattice: Vec::new(),
                 lattice_at: Vec::new(),
@@ -2119,6 +2166,33 @@ mod tests {
     /// `mu^2` and its slope there, rising or falling, curved or straight, at the limb
     /// (`q` 0) and 1e-12 from it; and reads evenly in `mu` over a strip the limb crosses
     /// weigh up to the strip's length on the disk.
+    /// The reads' weights along a side integrate cubics exactly, are positive, and keep a
+    /// constant's mean; the midpoint rule alone misses `x^2` by `h^2 / 12`.
+    #[test]
+    fn the_reads_weights_integrate_a_cubic_over_a_pixel() {
+        for n in 1..=9 {
+            let h = 1.0 / n as f64;
+            let rule = |f: &dyn Fn(f64) -> f64, weighted: bool| {
+                (0..n)
+                    .map(|k| {
+                        let w = if weighted { end_weight(k, n) } else { 1.0 };
+                        w * f((k as f64 + 0.5) * h) * h
+                    })
+                    .sum::<f64>()
+            };
+            assert!((0..n).all(|k| end_weight(k, n) > 0.0));
+            assert!((rule(&|_| 1.0, true) - 1.0).abs() < 1e-14, "{n}");
+            let cubic = |x: f64| 2.0 - x + 3.0 * x * x - 5.0 * x * x * x;
+            // Its integral over [0, 1]: 2 - 1/2 + 1 - 5/4.
+            let exact = 1.25;
+            let midpoint = rule(&cubic, false) - exact;
+            if n >= 3 {
+                assert!((rule(&cubic, true) - exact).abs() < 1e-13, "{n}");
+                assert!(midpoint.abs() > 1e-3 * h * h, "{n}: {midpoint}");
+            }
+        }
+    }
+
     #[test]
     fn a_strip_of_a_limb_pixel_is_read_evenly_in_mu() {
         for (c0, c1, c2) in [

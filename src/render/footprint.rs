@@ -76,8 +76,9 @@
 //! reference's), 0 where the relief hides the Sun or the camera (Eq. 33, by the frame's
 //! `self_shadowing`, each read its own shadow rays) or the shape is unlit; the pixel is
 //! scaled by the sum of that over its reads against the sum of the smooth shape's
-//! `f_r(s_ref) mu0`, which is what the quadrangles gridded there ([`Step::relief_pixel`]).
-//! The reads are spaced on the finer of the map's and the DEM's texels, and Hapke's BRDF is
+//! `f_r(s_ref) mu0`, which is what the quadrangles gridded there ([`Step::relief_pixel`]),
+//! each read weighted by the midpoint rule's end correction ([`end_weight`]: the midpoint
+//! rule alone left the high-phase frames a bright lean). The reads are spaced on the finer of the map's and the DEM's texels, and Hapke's BRDF is
 //! evaluated at each read (no table: the relief's angles change from read to read). On the
 //! apolune frame: median 8.3e-4 at 1 per pixel, for about a microsecond a read, most of it
 //! the shadow rays (`docs/performance.md`, "The relief over each pixel"). Near the terminator
@@ -1831,8 +1832,9 @@ fn cell_share(m: f64, gx: f64, gy: f64) -> f64 {
 /// `h^2 / 24 (f'(b) - f'(a))`, the difference of slopes taken as `n h` times the reads'
 /// mean second difference. Three reads take 3/8, 1/4, 3/8 of the side (the open Maclaurin
 /// rule); more, `1 + c, 1 - c, 1, ..., 1, 1 - c, 1 + c` with `c = n / (24 (n - 2))`.
-/// Exact for cubics, positive, and unbiased over a kink of the light
-/// that falls anywhere between the reads (its mean over the kink's place is a quadratic).
+/// Exact for cubics, positive, and unbiased over a kink of the light that falls anywhere
+/// between the reads (its mean over the kink's place is a quadratic). The coarser quarter of
+/// the reads that [`relief_estimate`] sets against them is left unweighted.
 ///
 /// The midpoint rule alone leaned. The relief's light is concave where it is lit (the product
 /// of `mu0` and `mu` as the slope tilts towards one and away from the other) and kinked
@@ -2162,10 +2164,6 @@ mod tests {
         assert!(Shadowed::of((&None, &0.0)).is_none());
     }
 
-    /// A limb pixel's strip: the parabola through three values of `q` finds where `q` is
-    /// `mu^2` and its slope there, rising or falling, curved or straight, at the limb
-    /// (`q` 0) and 1e-12 from it; and reads evenly in `mu` over a strip the limb crosses
-    /// weigh up to the strip's length on the disk.
     /// The reads' weights along a side integrate cubics exactly, are positive, and keep a
     /// constant's mean; the midpoint rule alone misses `x^2` by `h^2 / 12`.
     #[test]
@@ -2193,6 +2191,10 @@ mod tests {
         }
     }
 
+    /// A limb pixel's strip: the parabola through three values of `q` finds where `q` is
+    /// `mu^2` and its slope there, rising or falling, curved or straight, at the limb
+    /// (`q` 0) and 1e-12 from it; and reads evenly in `mu` over a strip the limb crosses
+    /// weigh up to the strip's length on the disk.
     #[test]
     fn a_strip_of_a_limb_pixel_is_read_evenly_in_mu() {
         for (c0, c1, c2) in [

@@ -562,7 +562,9 @@ impl Step<'_> {
         // terminator, or not on a grid) each read counts once.
         let grid = grid.filter(|&(ns, nt)| ns * nt == band.relief.len());
         for (j, (read, &(lon, lat))) in band.relief.iter().zip(&band.reads).enumerate() {
-            let weight = if grid.is_some() { band.weights[j] } else { 1.0 };
+            let weight = grid.map_or(1.0, |(ns, nt)| {
+                end_weight(j % ns, ns) * end_weight(j / ns, nt)
+            });
             smooth += weight * read.smooth;
             near_night |= read.seen && read.mu0_shape < MU0_ABSOLUTE;
             let share = band.lit[j];
@@ -977,9 +979,6 @@ struct Band<'a> {
     reads: Vec<(f64, f64)>,
     relief: Vec<ReliefRead>,
     lit: Vec<f64>,
-    /// Each read's weight in its pixel's sums where they lie on a grid over it
-    /// ([`end_weight`]).
-    weights: Vec<f64>,
     crossings: Vec<f64>,
     /// A block's reads on one lattice, row by row (`None` for the pixels it leaves as they
     /// are), their map coordinates and lit shares ([`Step::read_lattice`]).
@@ -1012,14 +1011,13 @@ impl Band<'_> {
     }
 
     /// A pixel's reads from the lattice (`lw` reads wide), `(ns, nt)` of them from column
-    /// `ca` and row `rb`, into `reads`, `lit`, `relief` and `weights` ([`Step::relief_pixel`]'s
-    /// input), the reads not taken (`None`: beyond the terminator) left out of all four. (Left
-    /// out of `relief` only, they had shifted the others' places and lit shares against it.)
+    /// `ca` and row `rb`, into `reads`, `lit` and `relief` ([`Step::relief_pixel`]'s input),
+    /// the reads not taken (`None`: beyond the terminator) left out of all three. (Left out of
+    /// `relief` only, they had shifted the others' places and lit shares against it.)
     fn take_reads(&mut self, lw: usize, (ca, rb): (usize, usize), (ns, nt): (usize, usize)) {
         self.reads.clear();
         self.relief.clear();
         self.lit.clear();
-        self.weights.clear();
         for b in 0..nt {
             for a in 0..ns {
                 let q = (rb + b) * lw + ca + a;
@@ -1027,7 +1025,6 @@ impl Band<'_> {
                     self.reads.push(self.lattice_at[q]);
                     self.lit.push(self.lattice_lit[q]);
                     self.relief.push(*read);
-                    self.weights.push(end_weight(a, ns) * end_weight(b, nt));
                 }
             }
         }
@@ -2081,7 +2078,6 @@ pub fn apply_maps(
                 reads: Vec::with_capacity(CAST * CAST),
                 relief: Vec::with_capacity(CAST * CAST),
                 lit: Vec::with_capacity(CAST * CAST),
-                weights: Vec::with_capacity(CAST * CAST),
                 crossings: Vec::new(),
                 lattice: Vec::new(),
                 lattice_at: Vec::new(),

@@ -36,8 +36,10 @@
 //! [`Features::modelled`], and `k` how much more finely a pixel's reads may get where they
 //! disagree, [`Features::refined`]). It is fitted on the sweep's frames with a DEM alone
 //! (`sweeps/budget_dem.toml`: the planner's own rungs, `rung = p`) over the three terms held
-//! fixed, and those frames get their own margin ([`FigureModel::relief_margin`]): the model
-//! of every frame without a DEM is what it was without them.
+//! fixed, and those frames get their own margins, one for each thing that carries the
+//! relief ([`ReliefKind`]: the quadrangles, each pixel's reads from one quadrangle per pixel
+//! up, and below it; [`FigureModel::margin_at`]): the model of every frame without a DEM is
+//! what it was without them.
 //!
 //! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
 //! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
@@ -263,21 +265,101 @@ pub struct Term {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FigureModel {
     pub margin: f64,
-    /// The margin that bounds every frame with a DEM the model was fitted on; `None` where it
-    /// was fitted on none (then such a frame's prediction is `margin`'s extrapolation, and
-    /// the planner does not claim it: [`UNFITTED_DEM`]).
+    /// The margin that bounds every frame with a DEM the model was fitted on whose
+    /// quadrangles carry the relief ([`ReliefKind::Quadrangles`]), and every frame with a DEM
+    /// where the margin of its kind is not set; `None` where it was fitted on no frame with a
+    /// DEM (then such a frame's prediction is `margin`'s extrapolation, and the planner does
+    /// not claim it: [`UNFITTED_DEM`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relief_margin: Option<f64>,
+    /// The margin that bounds every fitted frame whose pixels read the relief from one
+    /// quadrangle per pixel up ([`ReliefKind::Reads`]): the rungs the planner takes on such
+    /// frames. Their error is their reads', a law of its own. Kept with the others, the
+    /// relief margin was set by frames of the other kinds: on this build's sweeps the p99's
+    /// at 2.9 by NRHO row 167 at 130 deg with its shadows' edges left to 2 quadrangles per
+    /// pixel (0.43), where the reads need 1.46 (`docs/performance.md`, "The planner refitted
+    /// on the weighted reads"). `None` in the model files written before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relief_margin_reads: Option<f64>,
+    /// The margin of the frames whose pixels read the relief below one quadrangle per pixel
+    /// ([`ReliefKind::CoarseReads`]): their total is the coarse quadrangles' gridding at the
+    /// limb, which changes sign from frame to frame and which no smooth law in `ln p`
+    /// follows (NRHO row 138 at 1/16 per pixel: 1.7e-4 against 1.6e-5 modelled, a margin of
+    /// 10.7 where the reads need 3.6 and the quadrangles' frames 2.3). `None` in the model
+    /// files written before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relief_margin_coarse: Option<f64>,
     pub term: Vec<Term>,
+}
+
+/// From this many quadrangles per pixel up a frame whose pixels read the relief is
+/// [`ReliefKind::Reads`], below it [`ReliefKind::CoarseReads`].
+pub const READS_FROM_PPP: f64 = 1.0;
+
+/// What carries a frame with a DEM's relief, each kind with its own margin
+/// ([`FigureModel::margin_at`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReliefKind {
+    /// The quadrangles ([`MapFilter::Pixel`] and the others): [`FigureModel::relief_margin`].
+    Quadrangles,
+    /// Each pixel's reads ([`MapFilter::Relief`]) from [`READS_FROM_PPP`] quadrangles per
+    /// pixel up: [`FigureModel::relief_margin_reads`].
+    Reads,
+    /// Each pixel's reads below [`READS_FROM_PPP`]: [`FigureModel::relief_margin_coarse`].
+    CoarseReads,
+}
+
+impl ReliefKind {
+    pub const ALL: [ReliefKind; 3] = [
+        ReliefKind::Quadrangles,
+        ReliefKind::Reads,
+        ReliefKind::CoarseReads,
+    ];
+
+    /// The kind of a frame showing `f` (modelled, [`Features::modelled`]) at
+    /// `points_per_px`.
+    pub fn of(points_per_px: f64, f: &Features) -> ReliefKind {
+        match (f.relief_per_pixel > 0.0, points_per_px >= READS_FROM_PPP) {
+            (false, _) => ReliefKind::Quadrangles,
+            (true, true) => ReliefKind::Reads,
+            (true, false) => ReliefKind::CoarseReads,
+        }
+    }
+
+    /// The field of the model file that holds this kind's margin.
+    pub fn field(self) -> &'static str {
+        match self {
+            ReliefKind::Quadrangles => "relief_margin",
+            ReliefKind::Reads => "relief_margin_reads",
+            ReliefKind::CoarseReads => "relief_margin_coarse",
+        }
+    }
 }
 
 impl FigureModel {
     pub fn predict(&self, points_per_px: f64, f: &Features) -> f64 {
-        let margin = match self.relief_margin {
-            Some(m) if f.relief > 0.0 => m,
+        self.margin_at(points_per_px, f) * self.modelled(points_per_px, f)
+    }
+
+    /// The margin a frame showing `f` at `points_per_px` takes: on a frame with a DEM its
+    /// kind's ([`ReliefKind`]), or `relief_margin` where the model has none of that kind;
+    /// else the plain one.
+    pub fn margin_at(&self, points_per_px: f64, f: &Features) -> f64 {
+        match self.relief_margin {
+            Some(m) if f.relief > 0.0 => self
+                .relief_margin_of(ReliefKind::of(points_per_px, f))
+                .unwrap_or(m),
             _ => self.margin,
-        };
-        margin * self.modelled(points_per_px, f)
+        }
+    }
+
+    /// The margin the model holds for frames of `kind` (None where it has none of its own).
+    pub fn relief_margin_of(&self, kind: ReliefKind) -> Option<f64> {
+        match kind {
+            ReliefKind::Quadrangles => self.relief_margin,
+            ReliefKind::Reads => self.relief_margin_reads,
+            ReliefKind::CoarseReads => self.relief_margin_coarse,
+        }
     }
 
     /// The fitted law without the margin.
@@ -307,11 +389,13 @@ pub struct ErrorModel {
 
 /// The largest ratio of measured p99 to the frame's own estimate of its reads' p99
 /// ([`crate::render::FrameStats::relief_read_p99`]) over the sweep's frames that read the
-/// relief over each pixel at one `relief_refine`: that estimate times `scale` bounds every
-/// such frame the model was fitted on. The estimate (each pixel's reads against a quarter
-/// of them) is far from the measured p99 both ways: 4 times above it and more at `k` 2 to 8
-/// from 1 quadrangle per pixel up, 3.4 times below it at `k` 1 at 130 deg of phase
-/// (`docs/performance.md`, "The model refitted on this build's frames").
+/// relief over each pixel at one `relief_refine`, from [`READ_SCALE_MIN_PPP`] quadrangles
+/// per pixel up: that estimate times `scale` bounds every such frame the model was fitted
+/// on. The estimate (each pixel's reads against a quarter of them) is far from the measured
+/// p99 both ways: 4 times above it and more at `k` 2 to 8 from 1 quadrangle per pixel up,
+/// 3.4 times below it at `k` 1 at 130 deg of phase on the build before the reads' weights
+/// (`docs/performance.md`, "The model refitted on this build's frames", "The planner
+/// refitted on the weighted reads").
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ReadScale {
     pub relief_refine: u32,
@@ -322,6 +406,13 @@ pub struct ReadScale {
 
 /// Fewest frames at one refinement for a [`ReadScale`] of its own.
 const READ_SCALE_MIN_FRAMES: usize = 4;
+
+/// The fewest quadrangles per pixel of a frame a [`ReadScale`] is fitted on. Below one a
+/// pixel the p99 grows with the limb's quadrangles, which the reads do not see (the NRHO's
+/// apolune at `k` 1: p99 0.125 at 1/16 per pixel, 0.077 at 1, the reads' estimate 0.164 at
+/// both); the model's own prediction, whose margin bounds every fitted frame, covers those
+/// rungs, and the estimate is what bounds the reads where the model has not seen them.
+const READ_SCALE_MIN_PPP: f64 = 1.0;
 
 /// The model fitted on the sweep of `docs/performance.md` (`config/error_model.toml`).
 const DEFAULT_MODEL: &str = include_str!("../../config/error_model.toml");
@@ -471,7 +562,13 @@ impl ErrorModel {
                     .all(|t| t.k.len() == t.x.len() && t.k.iter().all(|x| x.is_finite()))
                 && f.margin >= 1.0
                 && f.margin.is_finite()
-                && f.relief_margin.is_none_or(|m| m >= 1.0 && m.is_finite());
+                && [
+                    f.relief_margin,
+                    f.relief_margin_reads,
+                    f.relief_margin_coarse,
+                ]
+                .iter()
+                .all(|m| m.is_none_or(|m| m >= 1.0 && m.is_finite()));
             if !ok {
                 return Err(ModelError::Parse {
                     file: file.into(),
@@ -555,13 +652,14 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Per refinement, the factor that makes the frames' own estimates of their reads' p99 bound
-/// what they measured, over the `rows` that read the relief over each pixel
-/// ([`ReadScale`]; a refinement with fewer than [`READ_SCALE_MIN_FRAMES`] such frames gets
-/// none).
+/// what they measured, over the `rows` that read the relief over each pixel at
+/// [`READ_SCALE_MIN_PPP`] quadrangles per pixel and more ([`ReadScale`]; a refinement with
+/// fewer than [`READ_SCALE_MIN_FRAMES`] such frames gets none).
 fn fit_read_scales(rows: &[FitRow]) -> Vec<ReadScale> {
     let mut scales: Vec<ReadScale> = Vec::new();
     for r in rows.iter().filter(|r| {
         r.features.relief_per_pixel > 0.0
+            && r.points_per_px >= READ_SCALE_MIN_PPP
             && r.relief_read_p99.is_finite()
             && r.relief_read_p99 > 0.0
             && r.p99.is_finite()
@@ -618,6 +716,8 @@ fn fit_figure(
     let mut m = FigureModel {
         margin: 1.0,
         relief_margin: None,
+        relief_margin_reads: None,
+        relief_margin_coarse: None,
         term: terms.iter().zip(k).map(|(&x, k)| Term { x, k }).collect(),
     };
     let worst = usable
@@ -664,12 +764,27 @@ fn fit_relief(
         x: Regressors::Relief,
         k: k.into_iter().next().unwrap_or_default(),
     });
-    let worst = usable
-        .iter()
-        .zip(&y)
-        .map(|(r, y)| y - m.modelled(r.points_per_px, &r.features).ln())
-        .fold(0.0f64, f64::max);
-    m.relief_margin = Some(worst.exp());
+    // Each kind's margin bounds its frames; `relief_margin` the quadrangles' (all of them
+    // where there are none of that kind).
+    let worst = |kind: Option<ReliefKind>| {
+        let of_kind: Vec<f64> = usable
+            .iter()
+            .zip(&y)
+            .filter(|(r, _)| kind.is_none_or(|k| ReliefKind::of(r.points_per_px, &r.features) == k))
+            .map(|(r, y)| y - m.modelled(r.points_per_px, &r.features).ln())
+            .collect();
+        (!of_kind.is_empty()).then(|| of_kind.iter().fold(0.0f64, |a, &b| a.max(b)).exp())
+    };
+    let margins = (
+        worst(Some(ReliefKind::Quadrangles)).or(worst(None)),
+        worst(Some(ReliefKind::Reads)),
+        worst(Some(ReliefKind::CoarseReads)),
+    );
+    (
+        m.relief_margin,
+        m.relief_margin_reads,
+        m.relief_margin_coarse,
+    ) = margins;
     Ok(())
 }
 
@@ -1653,6 +1768,8 @@ mod tests {
         let two = |scale: f64| FigureModel {
             margin: 1.0,
             relief_margin: None,
+            relief_margin_reads: None,
+            relief_margin_coarse: None,
             term: vec![
                 Term {
                     x: Regressors::Edge,
@@ -1802,6 +1919,39 @@ mod tests {
         for r in &noisy {
             assert!(n.median.predict(r.points_per_px, &r.features) >= r.median * (1.0 - 1e-9));
         }
+        // A frame whose pixels read the relief off the law sets the reads' margin alone; the
+        // other frames with a DEM keep theirs.
+        let reads = noisy
+            .iter()
+            .rposition(|r| {
+                r.features.relief > 0.0
+                    && ReliefKind::of(r.points_per_px, &r.features) == ReliefKind::Reads
+            })
+            .unwrap();
+        assert!(n.median.relief_margin_reads.unwrap() < 1.5);
+        noisy[reads].median *= 8.0;
+        let c = ErrorModel::fit(&noisy).unwrap();
+        let (reads_margin_c, other_c) = (
+            c.median.relief_margin_reads.unwrap(),
+            c.median.relief_margin.unwrap(),
+        );
+        assert!(reads_margin_c > 6.0, "{reads_margin_c}");
+        assert!(
+            other_c < 0.6 * reads_margin_c,
+            "{other_c} against {reads_margin_c}"
+        );
+        for r in &noisy {
+            let p = c.median.predict(r.points_per_px, &r.features);
+            assert!(p >= r.median * (1.0 - 1e-9));
+            if r.features.relief > 0.0 {
+                let kind = ReliefKind::of(r.points_per_px, &r.features);
+                let want = c.median.relief_margin_of(kind).or(c.median.relief_margin);
+                assert_eq!(
+                    c.median.margin_at(r.points_per_px, &r.features),
+                    want.unwrap()
+                );
+            }
+        }
         // The model with its relief term round-trips through its file.
         assert_eq!(ErrorModel::parse(&m.to_toml(), "x").unwrap(), m);
     }
@@ -1873,9 +2023,10 @@ mod tests {
     }
 
     /// Per refinement, the factor on the frames' own p99 estimates is the largest ratio of
-    /// measured to estimated over the fitted frames that read the relief per pixel (those
-    /// that do not, or have no estimate, do not count); a refinement with too few frames
-    /// has none and takes the largest fitted, at least 1.
+    /// measured to estimated over the fitted frames that read the relief per pixel at one
+    /// quadrangle per pixel or more (those that do not, have fewer quadrangles or have no
+    /// estimate, do not count); a refinement with too few frames has none and takes the
+    /// largest fitted, at least 1.
     #[test]
     fn the_reads_estimate_is_scaled_to_bound_the_fitted_frames() {
         let read = |k: f64, p99: f64, estimate: f64| FitRow {
@@ -1897,6 +2048,11 @@ mod tests {
             .collect();
         rows.extend([0.25, 0.5, 1.0].iter().map(|&e| read(2.0, 0.0625, e)));
         rows.push(read(8.0, 0.5, f64::NAN));
+        // Below one quadrangle per pixel the limb's quadrangles carry the p99: not fitted.
+        rows.push(FitRow {
+            points_per_px: 0.0625,
+            ..read(8.0, 0.5, 0.1)
+        });
         rows.push(FitRow {
             features: Features {
                 relief_per_pixel: 0.0,

@@ -267,6 +267,9 @@ pub struct MarginSetBy {
     pub figure: &'static str,
     /// The relief margin (frames with a DEM) rather than the plain one.
     pub relief: bool,
+    /// The model file's field of the margin: `margin`, or the relief's of one kind
+    /// ([`crate::fidelity::budget::ReliefKind::field`]).
+    pub field: &'static str,
     pub margin: f64,
     pub scene: String,
     pub setting: String,
@@ -281,16 +284,7 @@ impl std::fmt::Display for MarginSetBy {
         write!(
             f,
             "{} {} {:.3}: {} / {} (measured {:.3e})",
-            self.figure,
-            if self.relief {
-                "relief_margin"
-            } else {
-                "margin"
-            },
-            self.margin,
-            self.scene,
-            self.setting,
-            self.measured
+            self.figure, self.field, self.margin, self.scene, self.setting, self.measured
         )
     }
 }
@@ -308,11 +302,29 @@ pub fn margins_set_by(m: &ErrorModel, rows: &[Row]) -> Vec<MarginSetBy> {
     ];
     let mut set_by = Vec::new();
     for (figure, model, get) in figures {
-        for (relief, margin) in [(false, Some(model.margin)), (true, model.relief_margin)] {
+        use crate::fidelity::budget::ReliefKind;
+        let mut margins = vec![(false, None, "margin", Some(model.margin))];
+        for kind in ReliefKind::ALL {
+            let own = model.relief_margin_of(kind);
+            if kind == ReliefKind::Quadrangles || own.is_some() {
+                margins.push((true, Some(kind), kind.field(), own));
+            }
+        }
+        // Where a kind has no margin of its own, `relief_margin` bounds its frames too.
+        let bounded_by = |kind: ReliefKind| match model.relief_margin_of(kind) {
+            Some(_) => kind,
+            None => ReliefKind::Quadrangles,
+        };
+        for (relief, kind, field, margin) in margins {
             let Some(margin) = margin else { continue };
             let binding = rows
                 .iter()
                 .filter(|r| r.ladder && r.failure.is_empty() && (r.f_relief > 0.0) == relief)
+                .filter(|r| {
+                    kind.is_none_or(|k| {
+                        bounded_by(ReliefKind::of(r.points_per_px, &r.modelled_features())) == k
+                    })
+                })
                 .filter(|r| get(r).is_finite() && get(r) > 0.0 && r.points_per_px > 0.0)
                 .map(|r| {
                     let predicted = model.predict(r.points_per_px, &r.modelled_features());
@@ -323,6 +335,7 @@ pub fn margins_set_by(m: &ErrorModel, rows: &[Row]) -> Vec<MarginSetBy> {
                 set_by.push(MarginSetBy {
                     figure,
                     relief,
+                    field,
                     margin,
                     scene: r.scene.clone(),
                     setting: r.setting.clone(),
@@ -356,7 +369,8 @@ pub fn model_text(m: &ErrorModel, how: &str, rows: &[Row]) -> String {
          # share of the lit surface under its steep slopes' shadows, R its shading between pixels\n\
          # where the quadrangles carry it, P 1 where each pixel reads it, k how much more finely its\n\
          # reads may get, relief_refine: each figure's relief term and relief_margin are fitted on\n\
-         # the frames with a DEM alone).\n\
+         # the frames with a DEM alone, relief_margin_reads and relief_margin_coarse\n\
+         # on those whose pixels read it from 1 quadrangle per pixel up and below).\n\
          # The frames that set the margins (their measured error is the model's prediction):\n\
          {set_by}\n{}",
         m.frames,

@@ -285,7 +285,7 @@ pub struct FigureModel {
     /// ([`ReliefKind::CoarseReads`]): their total is the coarse quadrangles' gridding at the
     /// limb, which changes sign from frame to frame and which no smooth law in `ln p`
     /// follows (NRHO row 138 at 1/16 per pixel: 1.7e-4 against 1.6e-5 modelled, a margin of
-    /// 10.7 where the reads need 3.6 and the quadrangles' frames 2.3). `None` in the model
+    /// 10.7 where the reads need 3.6 and the quadrangles' frames 4.8). `None` in the model
     /// files written before it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relief_margin_coarse: Option<f64>,
@@ -389,9 +389,12 @@ pub struct ErrorModel {
 
 /// The largest ratio of measured p99 to the frame's own estimate of its reads' p99
 /// ([`crate::render::FrameStats::relief_read_p99`]) over the sweep's frames that read the
-/// relief over each pixel at one `relief_refine`, from [`READ_SCALE_MIN_PPP`] quadrangles
-/// per pixel up: that estimate times `scale` bounds every such frame the model was fitted
-/// on. The estimate (each pixel's reads against a quarter of them) is far from the measured
+/// relief over each pixel at one `relief_refine`, from [`READS_FROM_PPP`] quadrangles per
+/// pixel up ([`ReliefKind::Reads`]): that estimate times `scale` bounds every such frame the
+/// model was fitted on. Below one a pixel the p99 grows with the limb's quadrangles, which
+/// the reads do not see (the NRHO's apolune at `k` 1: p99 0.125 at 1/16 per pixel, 0.077 at
+/// 1, the reads' estimate 0.164 at both); the model's own prediction, whose margin bounds
+/// every fitted frame, covers those rungs. The estimate (each pixel's reads against a quarter of them) is far from the measured
 /// p99 both ways: 4 times above it and more at `k` 2 to 8 from 1 quadrangle per pixel up,
 /// 3.4 times below it at `k` 1 at 130 deg of phase on the build before the reads' weights
 /// (`docs/performance.md`, "The model refitted on this build's frames", "The planner
@@ -406,13 +409,6 @@ pub struct ReadScale {
 
 /// Fewest frames at one refinement for a [`ReadScale`] of its own.
 const READ_SCALE_MIN_FRAMES: usize = 4;
-
-/// The fewest quadrangles per pixel of a frame a [`ReadScale`] is fitted on. Below one a
-/// pixel the p99 grows with the limb's quadrangles, which the reads do not see (the NRHO's
-/// apolune at `k` 1: p99 0.125 at 1/16 per pixel, 0.077 at 1, the reads' estimate 0.164 at
-/// both); the model's own prediction, whose margin bounds every fitted frame, covers those
-/// rungs, and the estimate is what bounds the reads where the model has not seen them.
-const READ_SCALE_MIN_PPP: f64 = 1.0;
 
 /// The model fitted on the sweep of `docs/performance.md` (`config/error_model.toml`).
 const DEFAULT_MODEL: &str = include_str!("../../config/error_model.toml");
@@ -652,14 +648,13 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Per refinement, the factor that makes the frames' own estimates of their reads' p99 bound
-/// what they measured, over the `rows` that read the relief over each pixel at
-/// [`READ_SCALE_MIN_PPP`] quadrangles per pixel and more ([`ReadScale`]; a refinement with
-/// fewer than [`READ_SCALE_MIN_FRAMES`] such frames gets none).
+/// what they measured, over the `rows` whose pixels read the relief from one quadrangle per
+/// pixel up ([`ReliefKind::Reads`], [`ReadScale`]; a refinement with fewer than
+/// [`READ_SCALE_MIN_FRAMES`] such frames gets none).
 fn fit_read_scales(rows: &[FitRow]) -> Vec<ReadScale> {
     let mut scales: Vec<ReadScale> = Vec::new();
     for r in rows.iter().filter(|r| {
-        r.features.relief_per_pixel > 0.0
-            && r.points_per_px >= READ_SCALE_MIN_PPP
+        ReliefKind::of(r.points_per_px, &r.features) == ReliefKind::Reads
             && r.relief_read_p99.is_finite()
             && r.relief_read_p99 > 0.0
             && r.p99.is_finite()

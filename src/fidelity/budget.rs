@@ -347,9 +347,20 @@ impl FigureModel {
     pub fn margin_at(&self, points_per_px: f64, f: &Features) -> f64 {
         match self.relief_margin {
             Some(m) if f.relief > 0.0 => self
-                .relief_margin_of(ReliefKind::of(points_per_px, f))
+                .relief_margin_of(self.bounding_kind(points_per_px, f))
                 .unwrap_or(m),
             _ => self.margin,
+        }
+    }
+
+    /// The kind whose relief margin bounds a frame with a DEM showing `f` at
+    /// `points_per_px`: its own where the model has one for it, else the quadrangles'
+    /// (`relief_margin`).
+    pub fn bounding_kind(&self, points_per_px: f64, f: &Features) -> ReliefKind {
+        let kind = ReliefKind::of(points_per_px, f);
+        match self.relief_margin_of(kind) {
+            Some(_) => kind,
+            None => ReliefKind::Quadrangles,
         }
     }
 

@@ -310,19 +310,15 @@ pub fn margins_set_by(m: &ErrorModel, rows: &[Row]) -> Vec<MarginSetBy> {
                 margins.push((true, Some(kind), kind.field(), own));
             }
         }
-        // Where a kind has no margin of its own, `relief_margin` bounds its frames too.
-        let bounded_by = |kind: ReliefKind| match model.relief_margin_of(kind) {
-            Some(_) => kind,
-            None => ReliefKind::Quadrangles,
-        };
         for (relief, kind, field, margin) in margins {
             let Some(margin) = margin else { continue };
             let binding = rows
                 .iter()
                 .filter(|r| r.ladder && r.failure.is_empty() && (r.f_relief > 0.0) == relief)
                 .filter(|r| {
+                    // Where a kind has no margin of its own, `relief_margin` bounds it.
                     kind.is_none_or(|k| {
-                        bounded_by(ReliefKind::of(r.points_per_px, &r.modelled_features())) == k
+                        model.bounding_kind(r.points_per_px, &r.modelled_features()) == k
                     })
                 })
                 .filter(|r| get(r).is_finite() && get(r) > 0.0 && r.points_per_px > 0.0)

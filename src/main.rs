@@ -246,6 +246,11 @@ enum Command {
         /// Write one JSON line per frame to this file.
         #[arg(long)]
         per_frame: Option<PathBuf>,
+        /// A second scene file rendered pose by pose in turn with `--scene` (the machine's
+        /// drift hits both alike): both reports, and how many times faster `--scene` is at the
+        /// median and the slowest frame. Per-frame lines then carry `"scene": 0` or `1`.
+        #[arg(long)]
+        against: Option<PathBuf>,
     },
     /// The daemon: poses over TCP (binary frames or JSON lines) and serial in, calibrated
     /// frames out on the stimulator's screen (fullscreen when a display exists, off-screen
@@ -565,34 +570,63 @@ fn run() -> anyhow::Result<()> {
             threads,
             frames,
             per_frame,
+            against,
         } => {
-            let mut cfg = match &scene {
+            let tune = |mut cfg: config::Config| -> anyhow::Result<config::Config> {
+                if let Some(p) = &preset {
+                    cfg.settings = Settings::preset(p).with_context(|| {
+                        format!("--preset {p}: allowed are default, high_accuracy")
+                    })?;
+                }
+                if let Some(t) = threads {
+                    cfg.settings.threads = t;
+                }
+                Ok(cfg)
+            };
+            let cfg = tune(match &scene {
                 Some(p) => config::load(p)?,
                 None => config::parse(
                     app::bench::DEFAULT_SCENE,
                     "<embedded config/nrho_bench.toml>",
                 )?,
-            };
-            if let Some(p) = preset {
-                cfg.settings = Settings::preset(&p)
-                    .with_context(|| format!("--preset {p}: allowed are default, high_accuracy"))?;
-            }
-            if let Some(t) = threads {
-                cfg.settings.threads = t;
-            }
+            })?;
             let mut sink = match &per_frame {
                 Some(p) => Some(std::io::BufWriter::new(
                     std::fs::File::create(p).with_context(|| format!("{}", p.display()))?,
                 )),
                 None => None,
             };
-            let report = app::bench::run(&cfg, trajectory.as_deref(), frames, |row| {
+            let mut write = |line: String| {
                 if let Some(w) = sink.as_mut() {
                     use std::io::Write;
-                    let _ = writeln!(w, "{}", serde_json::to_string(row).unwrap_or_default());
+                    let _ = writeln!(w, "{line}");
                 }
-            })?;
-            out!("{}", serde_json::to_string(&report)?);
+            };
+            match &against {
+                None => {
+                    let report = app::bench::run(&cfg, trajectory.as_deref(), frames, |row| {
+                        write(serde_json::to_string(row).unwrap_or_default())
+                    })?;
+                    out!("{}", serde_json::to_string(&report)?);
+                }
+                Some(a) => {
+                    let other = tune(config::load(a)?)?;
+                    let report = app::bench::compare(
+                        &cfg,
+                        &other,
+                        trajectory.as_deref(),
+                        frames,
+                        |which, row| {
+                            let mut v = serde_json::to_value(row).unwrap_or_default();
+                            if let serde_json::Value::Object(o) = &mut v {
+                                o.insert("scene".into(), which.into());
+                            }
+                            write(v.to_string())
+                        },
+                    )?;
+                    out!("{}", serde_json::to_string(&report)?);
+                }
+            }
         }
         Command::Serve(args) => serve(*args)?,
         Command::Replay {

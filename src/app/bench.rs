@@ -64,13 +64,63 @@ pub fn run(
     max_frames: Option<usize>,
     mut per_frame: impl FnMut(&FrameRow),
 ) -> Result<BenchReport, AppError> {
+    let mut reports = run_interleaved(&[config], trajectory, max_frames, |_, row| per_frame(row))?;
+    Ok(reports.remove(0))
+}
+
+/// Two scene files over the same poses, pose by pose in turn ([`run_interleaved`]): `scene`
+/// against `against`, and how many times faster `scene` is at the median frame and at the
+/// slowest (the issue-15 speed bar: `config/nrho_textured_budget.toml` against
+/// `config/nrho_textured.toml`).
+#[derive(Debug, Serialize)]
+pub struct Comparison {
+    pub scene: BenchReport,
+    pub against: BenchReport,
+    /// `against`'s median frame time over `scene`'s.
+    pub speedup_median: f64,
+    /// `against`'s slowest frame time over `scene`'s.
+    pub speedup_slowest: f64,
+}
+
+/// [`run`] for `scene` and `against` interleaved pose by pose, so that the machine's drift
+/// (load, clocks, caches) hits both alike; `per_frame` is told which (0: `scene`,
+/// 1: `against`).
+pub fn compare(
+    scene: &Config,
+    against: &Config,
+    trajectory: Option<&Path>,
+    max_frames: Option<usize>,
+    per_frame: impl FnMut(usize, &FrameRow),
+) -> Result<Comparison, AppError> {
+    let mut reports = run_interleaved(&[scene, against], trajectory, max_frames, per_frame)?;
+    let against = reports.remove(1);
+    let scene = reports.remove(0);
+    Ok(Comparison {
+        speedup_median: against.median_ms / scene.median_ms,
+        speedup_slowest: against.max_ms / scene.max_ms,
+        scene,
+        against,
+    })
+}
+
+/// Renders each pose with every one of `configs` in turn (one renderer, its buffers shared),
+/// one report per config; the poses and the camera are the first config's.
+pub fn run_interleaved(
+    configs: &[&Config],
+    trajectory: Option<&Path>,
+    max_frames: Option<usize>,
+    mut per_frame: impl FnMut(usize, &FrameRow),
+) -> Result<Vec<BenchReport>, AppError> {
+    let Some(first) = configs.first() else {
+        return Ok(Vec::new());
+    };
     let (poses, label) = match trajectory {
         Some(t) => (crate::trajectory::read(t)?, t.display().to_string()),
         None => {
             let n = max_frames.unwrap_or(20);
             let poses = (0..n)
                 .map(|i| {
-                    let mut p = config.pose;
+                    let mut p = first.pose;
                     p.frame_id = i as u64;
                     (0.0, p)
                 })
@@ -79,18 +129,59 @@ pub fn run(
         }
     };
     let n = max_frames.unwrap_or(usize::MAX).min(poses.len());
-    let mut renderer = Renderer::new(config.settings.threads)?;
-    let planner = config.planner();
-    let det = &config.scene.camera.detector;
-    // Every band's factor of Eq. 45, once: the bands cost a multiplication and an exposure.
-    let factors = config.scene.band_factors();
-    let mut dn = Vec::new();
-    let (mut times, mut points) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    let mut surface_samples_total = 0;
-    let mut stage_sum = serde_json::Map::new();
+    let mut renderer = Renderer::new(first.settings.threads)?;
+    let mut runs: Vec<Run> = configs.iter().map(|c| Run::new(c, n)).collect();
     for (t_s, pose) in poses.iter().take(n) {
+        for (which, run) in runs.iter_mut().enumerate() {
+            let row = run.frame(&mut renderer, *t_s, pose)?;
+            per_frame(which, &row);
+        }
+    }
+    let threads = renderer.threads();
+    Ok(runs
+        .into_iter()
+        .map(|r| r.report(label.clone(), threads))
+        .collect())
+}
+
+/// One scene's frames of a bench run, measured as they come.
+struct Run<'c> {
+    config: &'c Config,
+    planner: Option<crate::fidelity::budget::Planner>,
+    /// Every band's factor of Eq. 45, once: the bands cost a multiplication and an exposure.
+    factors: Vec<f64>,
+    dn: Vec<u16>,
+    times: Vec<(f64, u64)>,
+    points: Vec<usize>,
+    surface_samples_total: usize,
+    stage_sum: serde_json::Map<String, serde_json::Value>,
+}
+
+impl<'c> Run<'c> {
+    fn new(config: &'c Config, n: usize) -> Run<'c> {
+        Run {
+            config,
+            planner: config.planner(),
+            factors: config.scene.band_factors(),
+            dn: Vec::new(),
+            times: Vec::with_capacity(n),
+            points: Vec::with_capacity(n),
+            surface_samples_total: 0,
+            stage_sum: serde_json::Map::new(),
+        }
+    }
+
+    /// One frame at `pose`: planned (under a budget), rendered and read out to DN, timed.
+    fn frame(
+        &mut self,
+        renderer: &mut Renderer,
+        t_s: f64,
+        pose: &crate::scene::Pose,
+    ) -> Result<FrameRow, AppError> {
+        let config = self.config;
+        let det = &config.scene.camera.detector;
         let t0 = Instant::now();
-        let mut plan = planner.as_ref().map(|p| p.plan(&config.scene, pose));
+        let mut plan = self.planner.as_ref().map(|p| p.plan(&config.scene, pose));
         let settings = plan.as_ref().map_or(&config.settings, |p| &p.settings);
         let frame = renderer.render(&config.scene, pose, settings)?;
         if let Some(p) = plan.as_mut() {
@@ -99,7 +190,7 @@ pub fn run(
         let td = Instant::now();
         let size = (frame.width, frame.height);
         let band = |b| frame.band(b);
-        det.dn_into(band, size, &factors, pose.frame_id, &mut dn);
+        det.dn_into(band, size, &self.factors, pose.frame_id, &mut self.dn);
         let detector_ms = td.elapsed().as_secs_f64() * 1e3;
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         if let serde_json::Value::Object(o) =
@@ -109,13 +200,16 @@ pub fn run(
                 .into_iter()
                 .chain([("detector".to_string(), detector_ms.into())])
             {
-                let e = stage_sum.entry(key).or_insert(0.0.into());
+                let e = self.stage_sum.entry(key).or_insert(0.0.into());
                 *e = (e.as_f64().unwrap_or(0.0) + v.as_f64().unwrap_or(0.0)).into();
             }
         }
-        per_frame(&FrameRow {
+        self.times.push((ms, pose.frame_id));
+        self.points.push(frame.stats.points_kept);
+        self.surface_samples_total += frame.stats.surface_samples;
+        Ok(FrameRow {
             frame: pose.frame_id,
-            t_s: *t_s,
+            t_s,
             ms,
             points_kept: frame.stats.points_kept,
             surface_samples: frame.stats.surface_samples,
@@ -125,36 +219,39 @@ pub fn run(
             detector_ms,
             fidelity: plan,
             estimated_error: frame.stats.estimated_error,
-        });
-        times.push((ms, pose.frame_id));
-        points.push(frame.stats.points_kept);
-        surface_samples_total += frame.stats.surface_samples;
+        })
     }
-    for v in stage_sum.values_mut() {
-        *v = (v.as_f64().unwrap_or(0.0) / n.max(1) as f64).into();
+
+    /// The run's statistics over its frames.
+    fn report(mut self, trajectory: String, threads: usize) -> BenchReport {
+        let n = self.times.len();
+        for v in self.stage_sum.values_mut() {
+            *v = (v.as_f64().unwrap_or(0.0) / n.max(1) as f64).into();
+        }
+        let mut ms: Vec<f64> = self.times.iter().map(|t| t.0).collect();
+        let [median, p95, max] = crate::stats::quantiles(&mut ms, [0.5, 0.95, 1.0]);
+        self.points.sort_unstable();
+        let slowest = self
+            .times
+            .iter()
+            .fold((0.0, 0), |a, &t| if t.0 > a.0 { t } else { a });
+        BenchReport {
+            trajectory,
+            frames: n,
+            first_ms: self.times.first().map_or(0.0, |t| t.0),
+            threads,
+            median_ms: median,
+            p95_ms: p95,
+            max_ms: max,
+            fps_median: 1e3 / median,
+            fps_slowest: 1e3 / max,
+            points_kept_median: self.points.get(n / 2).copied().unwrap_or(0),
+            points_kept_max: self.points.last().copied().unwrap_or(0),
+            surface_samples_total: self.surface_samples_total,
+            mean_stage_ms: serde_json::Value::Object(self.stage_sum),
+            slowest_frame: slowest.1,
+        }
     }
-    let mut ms: Vec<f64> = times.iter().map(|t| t.0).collect();
-    let [median, p95, max] = crate::stats::quantiles(&mut ms, [0.5, 0.95, 1.0]);
-    points.sort_unstable();
-    let slowest = times
-        .iter()
-        .fold((0.0, 0), |a, &t| if t.0 > a.0 { t } else { a });
-    Ok(BenchReport {
-        trajectory: label,
-        frames: n,
-        first_ms: times.first().map_or(0.0, |t| t.0),
-        threads: renderer.threads(),
-        median_ms: median,
-        p95_ms: p95,
-        max_ms: max,
-        fps_median: 1e3 / median,
-        fps_slowest: 1e3 / max,
-        points_kept_median: points[points.len() / 2],
-        points_kept_max: *points.last().unwrap_or(&0),
-        surface_samples_total,
-        mean_stage_ms: serde_json::Value::Object(stage_sum),
-        slowest_frame: slowest.1,
-    })
 }
 
 /// `optistim bench-display`: the stimulator's per-frame path after rendering, F_eff -> screen
@@ -283,4 +380,41 @@ pub fn run_display(
         lsb_one: one,
         lsb_worse: worse,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::config::Config;
+
+    fn small(render: &str) -> Config {
+        let text = super::DEFAULT_SCENE
+            .replace("resolution_px = [1024, 1024]", "resolution_px = [64, 64]")
+            .replace("pixel_pitch_m = 5.5e-6", "pixel_pitch_m = 8.8e-5")
+            .replace("preset = \"default\"", render);
+        crate::config::parse(&text, "<bench test>").unwrap()
+    }
+
+    /// Two scenes over the same poses take turns pose by pose, each keeps its own frames
+    /// (what it rendered, not the other's), and the speed-ups are the other's times over
+    /// the scene's.
+    #[test]
+    fn two_scenes_take_turns_and_keep_their_own_frames() {
+        let coarse = small("preset = \"default\"\npoints_per_pixel = 0.25");
+        let fine = small("preset = \"default\"\npoints_per_pixel = 4.0");
+        let mut order = Vec::new();
+        let mut kept = [Vec::new(), Vec::new()];
+        let c = super::compare(&coarse, &fine, None, Some(3), |which, row| {
+            order.push((which, row.frame));
+            kept[which].push(row.points_kept);
+        })
+        .unwrap();
+        assert_eq!(order, [(0, 0), (1, 0), (0, 1), (1, 1), (0, 2), (1, 2)]);
+        assert_eq!((c.scene.frames, c.against.frames), (3, 3));
+        assert!(kept[0].iter().all(|&k| k == kept[0][0]));
+        assert!(kept[0][0] * 4 < kept[1][0], "{kept:?}");
+        assert_eq!(c.scene.points_kept_max, kept[0][0]);
+        assert_eq!(c.against.points_kept_max, kept[1][0]);
+        assert_eq!(c.speedup_median, c.against.median_ms / c.scene.median_ms);
+        assert_eq!(c.speedup_slowest, c.against.max_ms / c.scene.max_ms);
+    }
 }

@@ -596,10 +596,14 @@ fn run() -> anyhow::Result<()> {
                 )),
                 None => None,
             };
+            // The first failed write of a per-frame line, reported once the run is over.
+            let mut failed: Option<std::io::Error> = None;
             let mut write = |line: String| {
                 if let Some(w) = sink.as_mut() {
                     use std::io::Write;
-                    let _ = writeln!(w, "{line}");
+                    if let Err(e) = writeln!(w, "{line}") {
+                        failed.get_or_insert(e);
+                    }
                 }
             };
             match &against {
@@ -625,6 +629,13 @@ fn run() -> anyhow::Result<()> {
                         },
                     )?;
                     out!("{}", serde_json::to_string(&report)?);
+                }
+            }
+            if let (Some(w), Some(p)) = (sink.as_mut(), &per_frame) {
+                use std::io::Write;
+                let flushed = w.flush();
+                if let Some(e) = failed.or(flushed.err()) {
+                    return Err(e).with_context(|| format!("--per-frame {}", p.display()));
                 }
             }
         }

@@ -1,6 +1,7 @@
 //! `optistim bench [TRAJECTORY]`: renders every pose of a stream (render + detector, no file
 //! output) and reports per-frame time statistics. Without a trajectory it renders the scene's
 //! own pose repeatedly: the first frame (cold buffers) and the steady state are both reported.
+//! With `--against` two scene files take turns pose by pose ([`compare`]).
 
 use super::AppError;
 use crate::config::Config;
@@ -105,7 +106,7 @@ pub fn compare(
 
 /// Renders each pose with every one of `configs` in turn (one renderer, its buffers shared),
 /// one report per config; the poses and the camera are the first config's.
-pub fn run_interleaved(
+fn run_interleaved(
     configs: &[&Config],
     trajectory: Option<&Path>,
     max_frames: Option<usize>,

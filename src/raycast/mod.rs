@@ -425,6 +425,43 @@ impl<'a> Tracer<'a> {
         (t.is_finite() && t > 0.0).then_some((dir, cos_eps, solid, t, normal))
     }
 
+    /// What keeps the line of sight through `(u, v)` dark where it meets the first body and
+    /// brings no light back: whether the Sun fails to light the point (its facet turned
+    /// away, past the shape's terminator, or shadowed) and whether the camera fails to see it
+    /// (turned away, or hidden by the terrain); `None` where the ray misses or meets another
+    /// body. Each is asked in full, unlike [`Tracer::cast`], which stops at the first.
+    ///
+    /// A lit sliver may lie between a point the Sun alone fails and one the camera alone
+    /// fails, where no ray of the rule lands: on Artemis I row 730 (191 km up, 108 deg of
+    /// phase) strips 0.02 px across between the Sun's shadow and the ground a ridge hides
+    /// from the camera, which the reference lost from whole pixels ([`reference`] asks this
+    /// of its first rays).
+    pub fn dark_because(&self, u: f64, v: f64) -> Option<(bool, bool)> {
+        let (dir, _, _) = self.line_of_sight(u, v);
+        let (t, shape_normal, facet, which) = self.nearest(dir)?;
+        if which != 0 {
+            return None;
+        }
+        let p = self.camera_m + dir * t;
+        let body = &self.scene.body;
+        let up = p.normalize();
+        let normal = match &body.relief {
+            Some(r) => r.at(up, false).normal,
+            None => shape_normal,
+        };
+        let s = (self.sun_m - p).normalize();
+        let g = Local::new(normal, s, -dir);
+        let camera_fails = g.mu <= 0.0
+            || match (&body.relief, &self.terrain) {
+                (Some(r), Some(terrain)) if !r.displaces() => terrain.shadowed(up, -dir, false),
+                _ => false,
+            };
+        let sun_fails = g.mu0 <= 0.0
+            || self.past_shape_terminator(shape_normal, s)
+            || !self.sees_sun(p, up, normal, s, facet);
+        Some((sun_fails, camera_fails))
+    }
+
     /// The light of the first body's mesh facet `facet` where the line of sight through pixel
     /// position `(u, v)` meets its plane, as if nothing hid the Sun: `(direct, scattered)`
     /// `(P/L)` per px^2 (`Tracer::first_body_light`); `None` where the plane is not met in

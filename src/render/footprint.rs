@@ -1764,33 +1764,156 @@ fn lit_shares(
         let Some(rj) = reads[j].as_ref().filter(|r| r.k > 0.0) else {
             continue;
         };
-        let mut share = 1.0;
-        for ray in 0..2 {
+        // The read's own side of each ray's edge within its cell, and that side's share.
+        let mut sides = [CellSide::WHOLE; 2];
+        for (ray, side) in sides.iter_mut().enumerate() {
             if ray == 1 && !rj.camera_asked {
                 continue; // in the Sun's shadow's depth: its share is 0 already
             }
             let (x, y) = distances(crossings, ray, j);
-            let own = if x.iter().chain(&y).all(|d| d.is_nan()) {
-                1.0
-            } else if x.iter().all(|d| !d.is_nan()) || y.iter().all(|d| !d.is_nan()) {
-                // A sliver: along each axis, the read's side within its cell.
-                let along = |[l, r]: [f64; 2]| {
-                    let half = |d: f64| if d.is_nan() { 0.5 } else { d.min(0.5) };
-                    half(l) + half(r)
-                };
-                along(x) * along(y)
-            } else {
-                // The line through the nearest crossing on each axis: `1 - x/dx - y/dy`.
-                let inverse = |[l, r]: [f64; 2]| {
-                    let d = if l.is_nan() { r } else { l };
-                    if d.is_nan() { 0.0 } else { 1.0 / d.max(1e-9) }
-                };
-                cell_share(1.0, inverse(x), inverse(y))
-            };
-            share *= if rj.hidden[ray] { 1.0 - own } else { own };
+            *side = CellSide::of(x, y);
         }
-        lit[j] = share;
+        let hidden = [rj.hidden[0], rj.hidden[1] && rj.camera_asked];
+        lit[j] = lit_part(&sides, hidden);
     }
+}
+
+/// The lit share of a read's cell: the Sun's lit part and the camera's, each the read's
+/// own side of that ray's edge ([`CellSide`]), or the rest of the cell where the read is the
+/// hidden one.
+fn lit_part(sides: &[CellSide; 2], hidden: [bool; 2]) -> f64 {
+    let joint = match (sides[0].planes(), sides[1].planes()) {
+        (Some(a), Some(b)) => {
+            let mut both = [(0.0, 0.0, 0.0); 8];
+            both[..a.len()].copy_from_slice(a);
+            both[a.len()..a.len() + b.len()].copy_from_slice(b);
+            clipped_area(&both[..a.len() + b.len()])
+        }
+        _ => sides[0].area.min(sides[1].area),
+    };
+    let (a0, a1) = (sides[0].area, sides[1].area);
+    match hidden {
+        [false, false] => joint,
+        [true, false] => a1 - joint,
+        [false, true] => a0 - joint,
+        [true, true] => 1.0 - a0 - a1 + joint,
+    }
+    .clamp(0.0, 1.0)
+}
+
+/// A read's own side of one ray's shadow edge within its cell (the square `[-1/2, 1/2]^2`
+/// of the lattice around it, in spacings, [`lit_shares`]): the half-planes
+/// `m + gx x + gy y > 0` it is the intersection of (none: the whole cell) and its share of
+/// the cell.
+#[derive(Clone, Copy)]
+struct CellSide {
+    planes: [(f64, f64, f64); 4],
+    n: usize,
+    area: f64,
+}
+
+impl CellSide {
+    const WHOLE: CellSide = CellSide {
+        planes: [(0.0, 0.0, 0.0); 4],
+        n: 0,
+        area: 1.0,
+    };
+
+    /// From the edge's distances to the read along the lattice's rows `x` and columns `y`
+    /// (before it, after it; NaN where no edge): where edges lie on both sides along an
+    /// axis (a sliver narrower than the cell), the rectangle between the nearest crossings
+    /// on each axis; else the side of the straight line through them, `1 - x/dx - y/dy`
+    /// with the signs of their sides.
+    fn of(x: [f64; 2], y: [f64; 2]) -> CellSide {
+        let mut side = CellSide::WHOLE;
+        if x.iter().chain(&y).all(|d| d.is_nan()) {
+            return side;
+        }
+        let mut push = |plane: (f64, f64, f64)| {
+            side.planes[side.n] = plane;
+            side.n += 1;
+        };
+        if x.iter().all(|d| !d.is_nan()) || y.iter().all(|d| !d.is_nan()) {
+            // Along each axis the read's side within its cell: `-l < x < r`.
+            let half = |d: f64| if d.is_nan() { 0.5 } else { d.min(0.5) };
+            let along = |[l, r]: [f64; 2]| half(l) + half(r);
+            for (axis, [l, r]) in [(0, x), (1, y)] {
+                let g = |s: f64| if axis == 0 { (s, 0.0) } else { (0.0, s) };
+                if !l.is_nan() {
+                    let (gx, gy) = g(1.0);
+                    push((half(l), gx, gy));
+                }
+                if !r.is_nan() {
+                    let (gx, gy) = g(-1.0);
+                    push((half(r), gx, gy));
+                }
+            }
+            side.area = along(x) * along(y);
+        } else {
+            // The nearest crossing on each axis, `+1/l` before the read, `-1/r` after it.
+            let slope = |[l, r]: [f64; 2]| {
+                if !l.is_nan() {
+                    1.0 / l.max(1e-9)
+                } else if !r.is_nan() {
+                    -1.0 / r.max(1e-9)
+                } else {
+                    0.0
+                }
+            };
+            let (gx, gy) = (slope(x), slope(y));
+            push((1.0, gx, gy));
+            side.area = cell_share(1.0, gx, gy);
+        }
+        side
+    }
+
+    /// The half-planes, or `None` for the whole cell.
+    fn planes(&self) -> Option<&[(f64, f64, f64)]> {
+        (self.n > 0).then(|| &self.planes[..self.n])
+    }
+}
+
+/// The area of the part of the unit square `[-1/2, 1/2]^2` on which every `m + gx x + gy y`
+/// of `planes` is positive (the square clipped by each half-plane in turn, then the shoelace).
+/// The lit part of a read's cell where both the Sun's and the camera's edges cross it
+/// ([`lit_shares`]): the product of the two shares took them as independent, and a sliver
+/// lit between the Sun's shadow and the ground the camera cannot see (Artemis I row 730,
+/// 191 km up at 108 deg of phase: lit strips 0.02 px across, one side the Sun's edge, the
+/// other the camera's) came out at twice its light.
+fn clipped_area(planes: &[(f64, f64, f64)]) -> f64 {
+    const MAX: usize = 16;
+    let mut poly = [(0.0f64, 0.0f64); MAX];
+    let mut next = [(0.0f64, 0.0f64); MAX];
+    poly[..4].copy_from_slice(&[(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]);
+    let mut len = 4;
+    for &(m, gx, gy) in planes {
+        let f = |(x, y): (f64, f64)| m + gx * x + gy * y;
+        let mut k = 0;
+        for i in 0..len {
+            let (a, b) = (poly[i], poly[(i + 1) % len]);
+            let (fa, fb) = (f(a), f(b));
+            if fa > 0.0 && k < MAX {
+                next[k] = a;
+                k += 1;
+            }
+            if (fa > 0.0) != (fb > 0.0) && k < MAX {
+                let t = fa / (fa - fb);
+                next[k] = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
+                k += 1;
+            }
+        }
+        poly[..k].copy_from_slice(&next[..k]);
+        len = k;
+        if len < 3 {
+            return 0.0;
+        }
+    }
+    let mut twice = 0.0;
+    for i in 0..len {
+        let (a, b) = (poly[i], poly[(i + 1) % len]);
+        twice += a.0 * b.1 - b.0 * a.1;
+    }
+    0.5 * twice.abs()
 }
 
 /// The share of the unit square `[-1/2, 1/2]^2` on which `m + gx x + gy y > 0`: with
@@ -2250,6 +2373,53 @@ mod tests {
         let near = cell_share(1.0, 1.0 / 0.3, 1.0 / 0.5);
         assert!(close(near, 1.0 - 0.5 * 0.5 * 5.0 / 6.0), "{near}");
         assert!(close(near + cell_share(-1.0, 1.0 / 0.3, 1.0 / 0.5), 1.0));
+    }
+
+    /// Where the Sun's edge and the camera's both cross a read's cell, its lit share is the
+    /// area between them, not the product of the two shares: a read lit by the Sun 0.41 of
+    /// the spacing past the Sun's edge and hidden from the camera 0.33 past the camera's
+    /// (Artemis I row 730's slivers) is lit on 0.08 of its cell, where the product said
+    /// 0.91 x 0.17 = 0.155. A single line's clipped square is [`cell_share`].
+    #[test]
+    fn a_sliver_between_the_suns_edge_and_the_cameras_is_their_overlap() {
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        let nan = f64::NAN;
+        let sun = CellSide::of([0.41, nan], [nan, nan]);
+        let camera = CellSide::of([0.33, nan], [nan, nan]);
+        assert!(close(sun.area, 0.91) && close(camera.area, 0.83));
+        let got = lit_part(&[sun, camera], [false, true]);
+        assert!(close(got, 0.08), "{got}");
+        // Lit by both, and hidden from both: the intersection, and what neither side holds.
+        assert!(close(lit_part(&[sun, camera], [false, false]), 0.83));
+        assert!(close(lit_part(&[sun, camera], [true, true]), 0.09));
+        // One ray's edge alone: its share, as before.
+        let whole = CellSide::WHOLE;
+        assert!(close(lit_part(&[sun, whole], [true, false]), 0.09));
+        assert!(close(lit_part(&[whole, camera], [false, true]), 0.17));
+        // A sliver (edges on both sides) crossed by a slanted edge: the rectangle's clipped
+        // part, by a fine lattice.
+        let band = CellSide::of([0.1, 0.2], [nan, nan]);
+        let slant = CellSide::of([nan, 0.15], [0.4, nan]);
+        let fine = 2000;
+        let inside = (0..fine * fine)
+            .filter(|k| {
+                let x = ((k % fine) as f64 + 0.5) / fine as f64 - 0.5;
+                let y = ((k / fine) as f64 + 0.5) / fine as f64 - 0.5;
+                (-0.1 < x && x < 0.2) && (1.0 - x / 0.15 + y / 0.4 > 0.0)
+            })
+            .count() as f64
+            / (fine * fine) as f64;
+        let got = lit_part(&[band, slant], [false, false]);
+        assert!((got - inside).abs() < 1e-5, "{got} {inside}");
+        for (m, gx, gy) in [
+            (1.0, 2.0, -3.0),
+            (0.2, 0.5, 0.1),
+            (-0.3, 1.0, 1.0),
+            (1.0, 0.0, 0.0),
+        ] {
+            let a = clipped_area(&[(m, gx, gy)]);
+            assert!((a - cell_share(m, gx, gy)).abs() < 1e-12, "{a}");
+        }
     }
 
     /// Hills some 8 texels across at a Sun 4 deg up: over a lattice of reads 0.3 texels

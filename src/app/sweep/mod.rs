@@ -520,7 +520,10 @@ fn reference_of(
 /// creases too, where a grazing ray dips below a ridge between two of its shortest steps.
 /// 7: the cells near an edge whose rays agree are read by a lattice
 /// (`ReferenceSettings::lattice_per_px`), which does not lose the slivers between the rays.
-pub(crate) const REFERENCE_MODEL: u32 = 7;
+/// 8: a pixel around which the Sun alone keeps some first rays dark and the camera alone
+/// others is near an edge (`Tracer::dark_because`): the slivers lit between the two were lost
+/// from whole pixels.
+pub(crate) const REFERENCE_MODEL: u32 = 8;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

@@ -23,7 +23,11 @@
 //!   alone keeping some dark and the camera alone others ([`Tracer::dark_because`]): a strip
 //!   lit between the Sun's shadow and the ground a ridge hides from the camera, thinner than
 //!   the rays' spacing, was lost from whole pixels (Artemis I row 730, 191 km up at 108 deg:
-//!   3 of 17 lit pixels of `tests/data/sliver_730.toml` at 0, its total 18.5 % dark);
+//!   3 of 17 lit pixels of `tests/data/sliver_730.toml` at 0, its total 18.5 % dark); and
+//!   every cell of a pixel whose rays or a neighbour's are lit where another's are dark: an
+//!   edge running along a column of pixels between two pixels' rays (within 0.11 px of
+//!   their common side) left the pixel on its dark side dark however much of it was lit
+//!   (on 730, pixels 9 % lit);
 //! - in those pixels, a cell whose 13 rays all agree (all lit, all dark) has its four corners
 //!   cast as well, down to `corner_depth` halvings, and is cut when one of them disagrees: the
 //!   terminator side of a lune of light thinner than a pixel slips between the rule's points,
@@ -224,25 +228,32 @@ fn rules(tracer: &Tracer, c: &Cell) -> (f64, f64, f64, u32, u32) {
     (g2, g3, range, hits, lit)
 }
 
-/// A ray the Sun alone keeps dark (it lights the point not, the camera sees it), and one the
-/// camera alone keeps dark ([`Tracer::dark_because`]): [`rules_with`]'s `dark` bits.
-const SUN_ONLY: u8 = 1;
-const CAMERA_ONLY: u8 = 2;
+/// What a pixel's first rays found ([`rules_with`]'s bits): some lit, some meeting the body
+/// dark, and of those, one the Sun alone keeps dark (it lights the point not, the camera sees
+/// it) and one the camera alone keeps dark ([`Tracer::dark_because`]).
+const LIT: u8 = 1;
+const DARK: u8 = 2;
+const SUN_ONLY: u8 = 4;
+const CAMERA_ONLY: u8 = 8;
 
-/// [`rules`], and with `ask_dark` which of [`SUN_ONLY`] and [`CAMERA_ONLY`] its dark rays
-/// that meet the body are.
+/// [`rules`], and with `ask_dark` the [`LIT`], [`DARK`], [`SUN_ONLY`] and [`CAMERA_ONLY`]
+/// bits of its rays.
 fn rules_with(tracer: &Tracer, c: &Cell, ask_dark: bool) -> (f64, f64, f64, u32, u32, u8) {
     let area = c.side * c.side;
-    let (mut hits, mut lit, mut dark) = (0, 0, 0u8);
+    let (mut hits, mut lit, mut found) = (0, 0, 0u8);
     let mut cast = |u: f64, v: f64| {
         let hit = tracer.cast(u, v);
         hits += u32::from(hit.range_m.is_finite());
         lit += u32::from(hit.pl_per_px2 > 0.0);
-        if ask_dark && hit.range_m.is_finite() && hit.pl_per_px2 <= 0.0 {
-            dark |= match tracer.dark_because(u, v) {
-                Some((true, false)) => SUN_ONLY,
-                Some((false, true)) => CAMERA_ONLY,
-                _ => 0,
+        if ask_dark && hit.range_m.is_finite() {
+            found |= if hit.pl_per_px2 > 0.0 {
+                LIT
+            } else {
+                DARK | match tracer.dark_because(u, v) {
+                    Some((true, false)) => SUN_ONLY,
+                    Some((false, true)) => CAMERA_ONLY,
+                    _ => 0,
+                }
             };
         }
         hit
@@ -263,7 +274,7 @@ fn rules_with(tracer: &Tracer, c: &Cell, ask_dark: bool) -> (f64, f64, f64, u32,
             }
         }
     }
-    (g2 * area, g3 * area, range, hits, lit, dark)
+    (g2 * area, g3 * area, range, hits, lit, found)
 }
 
 /// Whether any corner of cell `c` is lit when its rays are dark (`lit` false), or dark when
@@ -461,7 +472,7 @@ fn render_camera(
 
     // First estimates: the 3 x 3 rule over each pixel, the range at its centre, whether its
     // rays disagree (some meet the body and some miss, or some are lit and some dark), and
-    // which of its dark rays the Sun alone or the camera alone keeps dark.
+    // what they found ([`LIT`], [`DARK`], [`SUN_ONLY`], [`CAMERA_ONLY`]).
     let firsts: Vec<(f64, f64, bool, u8)> = pool.install(|| {
         (0..w * h)
             .into_par_iter()
@@ -484,14 +495,16 @@ fn render_camera(
     });
     let first: Vec<f64> = firsts.iter().map(|f| f.0).collect();
     let depth: Vec<f64> = firsts.iter().map(|f| f.1).collect();
-    // Near an edge: a pixel around which rays disagree, or around which the Sun alone keeps
-    // some rays dark and the camera alone others (a lit sliver may run between them).
+    // Near an edge: a pixel around which rays disagree, within a pixel or from one pixel to
+    // the next (an edge between two pixels' rays), or around which the Sun alone keeps some
+    // rays dark and the camera alone others (a lit sliver may run between them).
     let near_edge = |p: usize| {
-        let mut dark = 0;
+        let mut found = 0;
         super::around(p, w, h).any(|q| {
-            dark |= firsts[q].3;
+            found |= firsts[q].3;
             firsts[q].2
-        }) || dark == SUN_ONLY | CAMERA_ONLY
+        }) || found & (LIT | DARK) == LIT | DARK
+            || found & (SUN_ONLY | CAMERA_ONLY) == SUN_ONLY | CAMERA_ONLY
     };
     let mut lit: Vec<f64> = first.iter().copied().filter(|&x| x > 0.0).collect();
     let floor = if lit.is_empty() {

@@ -522,8 +522,9 @@ fn reference_of(
 /// (`ReferenceSettings::lattice_per_px`), which does not lose the slivers between the rays.
 /// 8: a pixel around which the Sun alone keeps some first rays dark and the camera alone
 /// others is near an edge (`Tracer::dark_because`): the slivers lit between the two were lost
-/// from whole pixels.
-pub(crate) const REFERENCE_MODEL: u32 = 8;
+/// from whole pixels. 9: so is a pixel whose first rays or a neighbour's are lit where
+/// another pixel's around it are dark: an edge between two pixels' rays was lost.
+pub(crate) const REFERENCE_MODEL: u32 = 9;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

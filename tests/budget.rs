@@ -260,28 +260,13 @@ fn the_reference_holds_the_light_of_a_sub_pixel_lune() {
 #[test]
 fn the_reference_keeps_the_slivers_of_light_at_a_grazing_limb() {
     use optistim::raycast::Tracer;
-    use rayon::prelude::*;
     let cfg = optistim::config::load(std::path::Path::new("tests/data/grazing_limb.toml"))
         .unwrap_or_else(|e| panic!("{e}"));
     let intr = &cfg.scene.camera.intrinsics;
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
     // Brute force: every pixel on a lattice of 128 x 128 midpoints, read whatever they find.
     let tracer = Tracer::new(&cfg.scene, &cfg.pose);
-    let n = 128;
-    let brute: f64 = (0..w * h)
-        .into_par_iter()
-        .map(|p| {
-            let (i, j) = ((p % w) as f64, (p / w) as f64);
-            let mut sum = 0.0;
-            for b in 0..n {
-                for a in 0..n {
-                    let (u, v) = ((a as f64 + 0.5) / n as f64, (b as f64 + 0.5) / n as f64);
-                    sum += tracer.cast(i + u, j + v).pl_per_px2;
-                }
-            }
-            sum / (n * n) as f64
-        })
-        .sum();
+    let brute: f64 = brute_force(&tracer, (w, h), (128, 128)).iter().sum();
     assert!(brute > 0.0);
     let off = |lattice_per_px| {
         let settings = ReferenceSettings {
@@ -343,26 +328,10 @@ fn the_reference_keeps_the_slivers_between_the_suns_shadow_and_the_cameras() {
 /// the reference's total against the brute force's.
 fn against_brute_force(file: &str) -> (usize, usize, f64) {
     use optistim::raycast::Tracer;
-    use rayon::prelude::*;
     let cfg = optistim::config::load(std::path::Path::new(file)).unwrap_or_else(|e| panic!("{e}"));
     let intr = &cfg.scene.camera.intrinsics;
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
-    let tracer = Tracer::new(&cfg.scene, &cfg.pose);
-    let (nu, nv) = (1024, 16);
-    let brute: Vec<f64> = (0..w * h)
-        .into_par_iter()
-        .map(|p| {
-            let (i, j) = ((p % w) as f64, (p / w) as f64);
-            let mut sum = 0.0;
-            for b in 0..nv {
-                for a in 0..nu {
-                    let (u, v) = ((a as f64 + 0.5) / nu as f64, (b as f64 + 0.5) / nv as f64);
-                    sum += tracer.cast(i + u, j + v).pl_per_px2;
-                }
-            }
-            sum / (nu * nv) as f64
-        })
-        .collect();
+    let brute = brute_force(&Tracer::new(&cfg.scene, &cfg.pose), (w, h), (1024, 16));
     let settings = ReferenceSettings {
         tolerance: 1e-4,
         max_depth: 6,
@@ -376,6 +345,30 @@ fn against_brute_force(file: &str) -> (usize, usize, f64) {
         .filter(|&p| brute[p] > 0.01 * total / lit as f64 && r.frame.pl[p] <= 0.0)
         .count();
     (lit, lost, r.frame.pl.iter().sum::<f64>() / total - 1.0)
+}
+
+/// Each pixel of a `w x h` image read by brute force: the mean of the tracer's light at a
+/// lattice of `nu` x `nv` midpoints over it (across its columns, along them).
+fn brute_force(
+    tracer: &optistim::raycast::Tracer,
+    (w, h): (usize, usize),
+    (nu, nv): (usize, usize),
+) -> Vec<f64> {
+    use rayon::prelude::*;
+    (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let (i, j) = ((p % w) as f64, (p / w) as f64);
+            let mut sum = 0.0;
+            for b in 0..nv {
+                for a in 0..nu {
+                    let (u, v) = ((a as f64 + 0.5) / nu as f64, (b as f64 + 0.5) / nv as f64);
+                    sum += tracer.cast(i + u, j + v).pl_per_px2;
+                }
+            }
+            sum / (nu * nv) as f64
+        })
+        .collect()
 }
 
 /// The planner reads an undisplaced DEM's shading and shadows over each pixel

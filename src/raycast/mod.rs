@@ -71,6 +71,21 @@ pub struct Tracer<'a> {
     sun_grid: Option<sun_grid::SunGrid>,
 }
 
+/// A line of sight's point on the first body ([`Tracer::first_body_at`]): the line of sight
+/// (B) with its `cos(eps)` and solid-angle factor ([`Tracer::line_of_sight`]), the point [m]
+/// and its unit direction from the centre (B), the shape's outward normal and the normal the
+/// BRDF sees (the DEM's where there is one), and a mesh's facet.
+struct FirstBodyPoint {
+    dir: DVec3,
+    cos_eps: f64,
+    solid: f64,
+    p: DVec3,
+    up: DVec3,
+    shape_normal: DVec3,
+    normal: DVec3,
+    facet: Option<u32>,
+}
+
 /// The light of a point of the first body as if nothing hid the Sun from it
 /// ([`Tracer::first_body_light`]), and what its shadow test needs.
 struct FirstBodyLight {
@@ -437,22 +452,19 @@ impl<'a> Tracer<'a> {
     /// from the camera, which the reference lost from whole pixels ([`reference`] asks this
     /// of its first rays).
     pub fn dark_because(&self, u: f64, v: f64) -> Option<(bool, bool)> {
-        let (dir, _, _) = self.line_of_sight(u, v);
-        let (t, shape_normal, facet, which) = self.nearest(dir)?;
-        if which != 0 {
-            return None;
-        }
-        let p = self.camera_m + dir * t;
-        let body = &self.scene.body;
-        let up = p.normalize();
-        let normal = match &body.relief {
-            Some(r) => r.at(up, false).normal,
-            None => shape_normal,
-        };
+        let FirstBodyPoint {
+            dir,
+            p,
+            up,
+            shape_normal,
+            normal,
+            facet,
+            ..
+        } = self.first_body_at(u, v)?;
         let s = (self.sun_m - p).normalize();
         let g = Local::new(normal, s, -dir);
         let camera_fails = g.mu <= 0.0
-            || match (&body.relief, &self.terrain) {
+            || match (&self.scene.body.relief, &self.terrain) {
                 (Some(r), Some(terrain)) if !r.displaces() => terrain.shadowed(up, -dir, false),
                 _ => false,
             };
@@ -533,18 +545,16 @@ impl<'a> Tracer<'a> {
     /// it misses, meets another body, or the point is unlit or shadowed. What the Hapke
     /// inversion ([`crate::inversion`]) fits the BRDF on.
     pub fn photometry(&self, u: f64, v: f64) -> Option<(f64, f64, f64, f64)> {
-        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
-        let (t, shape_normal, facet, which) = self.nearest(dir)?;
-        if which != 0 {
-            return None;
-        }
-        let p = self.camera_m + dir * t;
-        let body = &self.scene.body;
-        let up = p.normalize();
-        let normal = match &body.relief {
-            Some(r) => r.at(up, false).normal,
-            None => shape_normal,
-        };
+        let FirstBodyPoint {
+            dir,
+            cos_eps,
+            solid,
+            p,
+            up,
+            shape_normal,
+            normal,
+            facet,
+        } = self.first_body_at(u, v)?;
         let to_sun = self.sun_m - p;
         let d_sun2 = to_sun.length_squared();
         let s = to_sun / d_sun2.sqrt();
@@ -562,6 +572,32 @@ impl<'a> Tracer<'a> {
             s.dot(-dir),
             self.k_px * g.mu0 * cos_eps / d_sun2 * solid,
         ))
+    }
+
+    /// Where the line of sight through `(u, v)` meets the first body ([`FirstBodyPoint`]);
+    /// `None` where it misses or meets another body first.
+    fn first_body_at(&self, u: f64, v: f64) -> Option<FirstBodyPoint> {
+        let (dir, cos_eps, solid) = self.line_of_sight(u, v);
+        let (t, shape_normal, facet, which) = self.nearest(dir)?;
+        if which != 0 {
+            return None;
+        }
+        let p = self.camera_m + dir * t;
+        let up = p.normalize();
+        let normal = match &self.scene.body.relief {
+            Some(r) => r.at(up, false).normal,
+            None => shape_normal,
+        };
+        Some(FirstBodyPoint {
+            dir,
+            cos_eps,
+            solid,
+            p,
+            up,
+            shape_normal,
+            normal,
+            facet,
+        })
     }
 
     /// Whether the first body's surface point `p` (B; `up` its unit direction from the

@@ -1659,9 +1659,11 @@ const EDGE_HALVINGS: u32 = 3;
 /// ray), and a read beside an edge takes the share of its cell (the square of the lattice
 /// around it) on its own side of the straight line through the edge's nearest crossings of
 /// the lattice's two axes ([`cell_share`]), or across a sliver narrower than its cell
-/// (edges on both sides along an axis) the product of its shares along the two axes. Per
-/// shadow ray (the Sun's, the camera's; a read in the Sun's shadow is asked the camera's
-/// only beside the Sun's edge); the read's lit share is the product of the two.
+/// (edges on both sides along an axis) the rectangle between the crossings ([`CellSide`]).
+/// Per shadow ray (the Sun's, the camera's; a read in the Sun's shadow is asked the camera's
+/// only beside the Sun's edge); the read's lit share is the part of its cell lit by the Sun
+/// and seen by the camera both, clipped exactly ([`lit_part`]): the product of the two
+/// shares doubled the strips lit between the Sun's edge and the camera's (Artemis I row 730).
 ///
 /// The reads' own answers converge on a pixel's lit part only as their spacing: doubling
 /// them per side on `config/nrho_textured.toml`'s apolune frame halved its p99 (0.135 ->

@@ -487,9 +487,9 @@ fn render_camera(
                 if coverage == Coverage::Empty {
                     return (0.0, f64::NAN, false, 0);
                 }
-                let (_, g3, range, hits, lit, dark) = rules_with(&tracer, &c, true);
+                let (_, g3, range, hits, lit, found) = rules_with(&tracer, &c, true);
                 let mixed = (coverage == Coverage::Edge && hits < 13) || (lit > 0 && lit < 13);
-                (g3, range, mixed, dark)
+                (g3, range, mixed, found)
             })
             .collect()
     });

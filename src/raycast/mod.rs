@@ -545,32 +545,23 @@ impl<'a> Tracer<'a> {
     /// it misses, meets another body, or the point is unlit or shadowed. What the Hapke
     /// inversion ([`crate::inversion`]) fits the BRDF on.
     pub fn photometry(&self, u: f64, v: f64) -> Option<(f64, f64, f64, f64)> {
-        let FirstBodyPoint {
-            dir,
-            cos_eps,
-            solid,
-            p,
-            up,
-            shape_normal,
-            normal,
-            facet,
-        } = self.first_body_at(u, v)?;
-        let to_sun = self.sun_m - p;
+        let q = self.first_body_at(u, v)?;
+        let to_sun = self.sun_m - q.p;
         let d_sun2 = to_sun.length_squared();
         let s = to_sun / d_sun2.sqrt();
-        let g = Local::new(normal, s, -dir);
+        let g = Local::new(q.normal, s, -q.dir);
         if g.mu <= 0.0
             || g.mu0 <= 0.0
-            || self.past_shape_terminator(shape_normal, s)
-            || !self.sees_sun(p, up, normal, s, facet)
+            || self.past_shape_terminator(q.shape_normal, s)
+            || !self.sees_sun(q.p, q.up, q.normal, s, q.facet)
         {
             return None;
         }
         Some((
             g.mu0,
             g.mu,
-            s.dot(-dir),
-            self.k_px * g.mu0 * cos_eps / d_sun2 * solid,
+            s.dot(-q.dir),
+            self.k_px * g.mu0 * q.cos_eps / d_sun2 * q.solid,
         ))
     }
 

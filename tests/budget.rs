@@ -116,6 +116,7 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
     assert!(f["predicted"]["median"].as_f64().is_some(), "{json}");
     assert_eq!(f["map_filter"], "pixel", "{json}");
     assert_eq!(f["relief_refine"], 1, "{json}");
+    assert_eq!(f["renders"], 1, "{json}");
     let fits = std::fs::read(out.join("power.fits")).unwrap();
     let header = String::from_utf8_lossy(&fits[..2880 * 2]);
     for key in [
@@ -127,6 +128,7 @@ fn a_budgeted_render_reports_its_choice_and_prediction() {
         "SHADOWS = 'off",
         "MAPFILT = 'pixel",
         "RREFINE =",
+        "RENDERS =",
     ] {
         assert!(header.contains(key), "{key} missing");
     }
@@ -321,17 +323,83 @@ fn the_reference_keeps_the_slivers_between_the_suns_shadow_and_the_cameras() {
     }
 }
 
+/// A frame whose own estimate of its reads' p99 is over the budget renders itself again with
+/// its reads refined more finely: the windows of Artemis I row 730 are planned to read the
+/// relief over each pixel at `relief_refine` 2, whose estimate (the strips of light thinner
+/// than a read's spacing) is over the budget's p99, and they are rendered again up to 8,
+/// where their error against the brute force is lower.
+#[test]
+fn a_frame_over_its_own_estimate_renders_again_more_finely() {
+    use optistim::fidelity::budget::{Budget, ErrorModel, Planner};
+    for file in [
+        "tests/data/sliver_730.toml",
+        "tests/data/column_edge_730.toml",
+    ] {
+        let cfg =
+            optistim::config::load(std::path::Path::new(file)).unwrap_or_else(|e| panic!("{e}"));
+        let (scene, pose) = (&cfg.scene, &cfg.pose);
+        let planner = Planner::new(
+            scene,
+            &cfg.settings,
+            Budget::default(),
+            ErrorModel::shipped().unwrap(),
+        );
+        let mut renderer = Renderer::new(0).unwrap();
+        let first = planner.plan(scene, pose);
+        assert_eq!(first.map_filter, MapFilter::Relief, "{file}");
+        // Within its own estimate, or not reading the relief: rendered once.
+        let estimate = |p99| optistim::render::FrameStats {
+            relief_read_p99: Some(p99),
+            ..Default::default()
+        };
+        assert!(planner.refined_again(&first, &estimate(0.0)).is_none());
+        let pixel = optistim::fidelity::budget::Plan {
+            map_filter: MapFilter::Pixel,
+            ..first.clone()
+        };
+        assert!(planner.refined_again(&pixel, &estimate(1.0)).is_none());
+        let first_frame = renderer.render(scene, pose, &first.settings).unwrap();
+        let (plan, frame) = planner
+            .render(scene, pose, |s| renderer.render(scene, pose, s))
+            .unwrap();
+        let steps = plan.relief_refine.ilog2() - first.relief_refine.ilog2();
+        assert!(plan.renders > 1, "{file}: rendered once");
+        assert_eq!(plan.renders, 1 + steps, "{file}");
+        assert_eq!(plan.settings.relief_refine, plan.relief_refine, "{file}");
+        let own_p99 = frame.stats.relief_read_p99.unwrap() * plan.relief_read_scale;
+        assert!(
+            plan.relief_refine == 8 || own_p99 <= plan.budget.p99,
+            "{file}: stopped at {} with its own p99 {own_p99:.2e}",
+            plan.relief_refine
+        );
+        let brute = window_brute_force(file);
+        let (w, h) = (frame.width, frame.height);
+        let before = frame_error(&first_frame.pl, &brute, w, h);
+        let after = frame_error(&frame.pl, &brute, w, h);
+        eprintln!(
+            "{file}: refine {} -> {} ({} renders): p99 {:.2e} -> {:.2e}, total {:.2e} -> {:.2e}",
+            first.relief_refine,
+            plan.relief_refine,
+            plan.renders,
+            before.p99,
+            after.p99,
+            before.total,
+            after.total
+        );
+        assert!(after.p99 < before.p99, "{file}");
+    }
+}
+
 /// The reference of a 16 x 16 window (tolerance 1e-4, 6 halvings) against a brute force of
 /// 1024 midpoints across each pixel's columns by 16 along them (for edges within a few
 /// degrees of the columns): the pixels the brute force lights, how many of them the
 /// reference leaves at 0 (those with a hundredth of the mean lit pixel's light or more), and
 /// the reference's total against the brute force's.
 fn against_brute_force(file: &str) -> (usize, usize, f64) {
-    use optistim::raycast::Tracer;
     let cfg = optistim::config::load(std::path::Path::new(file)).unwrap_or_else(|e| panic!("{e}"));
     let intr = &cfg.scene.camera.intrinsics;
     let (w, h) = (intr.width_px as usize, intr.height_px as usize);
-    let brute = brute_force(&Tracer::new(&cfg.scene, &cfg.pose), (w, h), (1024, 16));
+    let brute = window_brute_force(file);
     let settings = ReferenceSettings {
         tolerance: 1e-4,
         max_depth: 6,
@@ -345,6 +413,24 @@ fn against_brute_force(file: &str) -> (usize, usize, f64) {
         .filter(|&p| brute[p] > 0.01 * total / lit as f64 && r.frame.pl[p] <= 0.0)
         .count();
     (lit, lost, r.frame.pl.iter().sum::<f64>() / total - 1.0)
+}
+
+/// [`brute_force`] of the window scene `file` at 1024 x 16 midpoints a pixel, computed once
+/// for the tests that read it.
+fn window_brute_force(file: &str) -> std::sync::Arc<Vec<f64>> {
+    use std::sync::{Arc, Mutex};
+    static DONE: Mutex<Vec<(String, Arc<Vec<f64>>)>> = Mutex::new(Vec::new());
+    let mut done = DONE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, b)) = done.iter().find(|(f, _)| f == file) {
+        return b.clone();
+    }
+    let cfg = optistim::config::load(std::path::Path::new(file)).unwrap_or_else(|e| panic!("{e}"));
+    let intr = &cfg.scene.camera.intrinsics;
+    let size = (intr.width_px as usize, intr.height_px as usize);
+    let tracer = optistim::raycast::Tracer::new(&cfg.scene, &cfg.pose);
+    let b = Arc::new(brute_force(&tracer, size, (1024, 16)));
+    done.push((file.to_string(), b.clone()));
+    b
 }
 
 /// Each pixel of a `w x h` image read by brute force: the mean of the tracer's light at a

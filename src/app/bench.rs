@@ -182,12 +182,18 @@ impl<'c> Run<'c> {
         let config = self.config;
         let det = &config.scene.camera.detector;
         let t0 = Instant::now();
-        let mut plan = self.planner.as_ref().map(|p| p.plan(&config.scene, pose));
-        let settings = plan.as_ref().map_or(&config.settings, |p| &p.settings);
-        let frame = renderer.render(&config.scene, pose, settings)?;
-        if let Some(p) = plan.as_mut() {
-            p.observe(&frame.stats);
-        }
+        let (plan, frame) = match &self.planner {
+            Some(p) => {
+                let (plan, frame) = p.render(&config.scene, pose, |s| {
+                    renderer.render(&config.scene, pose, s)
+                })?;
+                (Some(plan), frame)
+            }
+            None => (
+                None,
+                renderer.render(&config.scene, pose, &config.settings)?,
+            ),
+        };
         let td = Instant::now();
         let size = (frame.width, frame.height);
         let band = |b| frame.band(b);

@@ -103,11 +103,23 @@ pub fn make(
     pose: &Pose,
     renderer: &mut Renderer,
 ) -> Result<(FrameMeta, ImageSet), AppError> {
-    let (settings, mut plan) = settings_for(config, planner, pose);
-    let frame = renderer.render(&config.scene, pose, &settings)?;
-    if let Some(p) = plan.as_mut() {
-        p.observe(&frame.stats);
-    }
+    let with_depth = |s: &Settings| Settings {
+        depth: true,
+        ..s.clone()
+    };
+    let (frame, plan) = match planner {
+        Some(p) => {
+            let (plan, frame) = p.render(&config.scene, pose, |s| {
+                renderer.render(&config.scene, pose, &with_depth(s))
+            })?;
+            (frame, Some(plan))
+        }
+        None => (
+            renderer.render(&config.scene, pose, &with_depth(&config.settings))?,
+            None,
+        ),
+    };
+    let settings = with_depth(plan.as_ref().map_or(&config.settings, |p| &p.settings));
     Ok(detect(config, pose, frame, settings, plan))
 }
 
@@ -416,6 +428,11 @@ pub fn plan_cards(p: &Plan) -> Vec<Card> {
             "RREFINE",
             Value::Int(p.relief_refine as i64),
             "relief reads refined up to this per side",
+        ),
+        Card::new(
+            "RENDERS",
+            Value::Int(p.renders as i64),
+            "times rendered: again while over own estimate",
         ),
         f(
             "PREDMED",

@@ -580,11 +580,11 @@ fn budgeted(renderer: &mut Renderer, cfg: &Config, reference: &[f64]) -> Result<
     let model = ErrorModel::shipped().map_err(|e| e.to_string())?;
     let planner = Planner::new(&cfg.scene, &cfg.settings, Budget::default(), model);
     let t0 = Instant::now();
-    let mut plan = planner.plan(&cfg.scene, &cfg.pose);
-    let frame = renderer
-        .render(&cfg.scene, &cfg.pose, &plan.settings)
+    let (plan, frame) = planner
+        .render(&cfg.scene, &cfg.pose, |s| {
+            renderer.render(&cfg.scene, &cfg.pose, s)
+        })
         .map_err(|e| format!("under the budget: {e}"))?;
-    plan.observe(&frame.stats);
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let p = plan.predicted;
     Ok(Budgeted {

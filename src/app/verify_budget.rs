@@ -117,6 +117,15 @@ pub struct FrameCheck {
     pub rung_read_p99: String,
     #[serde(default)]
     pub rung_read_total: String,
+    /// How many times the budgeted frame was rendered: more than once where its own estimate
+    /// was over the budget and it was rendered again, its reads refined more finely
+    /// ([`crate::fidelity::budget::Planner::refined_again`]); `budget_ms` holds them all.
+    #[serde(default = "one")]
+    pub renders: u32,
+}
+
+fn one() -> u32 {
+    1
 }
 
 #[derive(Debug, Serialize)]
@@ -407,9 +416,9 @@ pub fn run(
     for &row in &todo {
         let pose = poses[row].1;
         let t0 = Instant::now();
-        let mut plan = planner.plan(&config.scene, &pose);
-        let frame = renderer.render(&config.scene, &pose, &plan.settings)?;
-        plan.observe(&frame.stats);
+        let (plan, frame) = planner.render(&config.scene, &pose, |s| {
+            renderer.render(&config.scene, &pose, s)
+        })?;
         let budget_ms = t0.elapsed().as_secs_f64() * 1e3;
         if keep_frames {
             let dir = out.join("frames");
@@ -511,6 +520,7 @@ pub fn run(
             rung_read_median,
             rung_read_p99,
             rung_read_total,
+            renders: plan.renders,
         };
         progress(&format!(
             "row {row}: {:.0} km, phase {:.1}: {} in {budget_ms:.1} ms; median {:.2e} p99 {:.2e} total {:.2e} (predicted {:.1e} / {:.1e} / {:.1e}){}; reference {:.1} s (its p99 and total: bound {:.1e}, {:.1e}; signed {:.1e}, {:.1e})",
@@ -525,12 +535,17 @@ pub fn run(
                 )
             } else {
                 format!(
-                    "ppp {} {:?} map {:?}{}",
+                    "ppp {} {:?} map {:?}{}{}",
                     c.points_per_pixel,
                     plan.self_shadowing,
                     plan.map_filter,
                     if plan.relief_refine > 1 {
                         format!(" refine {}", plan.relief_refine)
+                    } else {
+                        String::new()
+                    },
+                    if plan.renders > 1 {
+                        format!(" ({} renders)", plan.renders)
                     } else {
                         String::new()
                     }

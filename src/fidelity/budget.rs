@@ -483,6 +483,10 @@ pub struct Plan {
     /// not claim them either.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub outside_model: Option<&'static str>,
+    /// How many times the frame was rendered: 1, and one more each time its own estimate of
+    /// its reads' p99 came out over the budget and it was rendered again with its reads
+    /// refined twice as finely ([`Planner::refined_again`]).
+    pub renders: u32,
     pub budget: Budget,
     pub features: Features,
     #[serde(skip)]
@@ -1478,6 +1482,7 @@ impl Planner {
             },
             meets_budget: false,
             outside_model: None,
+            renders: 1,
             budget: b,
             features,
             settings,
@@ -1722,9 +1727,77 @@ impl Planner {
             predicted: chosen.predicted,
             meets_budget: meets,
             outside_model: outside,
+            renders: 1,
             budget: b,
             features,
             settings,
+        }
+    }
+}
+
+impl Planner {
+    /// The plan of a frame rendered at `plan` (with `stats`) again with its reads refined
+    /// twice as finely, where its own estimate of its reads' p99 (times the factor at its
+    /// refinement, [`Plan::observe`]) is over the budget's and a finer refinement is left; else
+    /// `None`. The quadrangles, the shadows and the map filter stay; the prediction is the
+    /// model's at the new refinement until that frame is observed in turn.
+    ///
+    /// The model plans from features probed on a coarse grid, which can miss what only the
+    /// rendered reads see: on Artemis I row 730 (191 km up, 108 deg of phase) the Sun's
+    /// shadows and the ridges' hiding leave the light in strips 0.02-0.03 px across, and
+    /// the plan (`relief_refine` 2) measured p99 7.0e-2, where its reads' own estimate said
+    /// 5.4e-2; refined 4 and 8 times it measured 3.5e-2 and 1.7e-2 (`docs/performance.md`,
+    /// "A frame over its own estimate renders again"). A frame outside the model
+    /// (`outside_model`) is at the ladder's top already and is left.
+    pub fn refined_again(&self, plan: &Plan, stats: &crate::render::FrameStats) -> Option<Plan> {
+        if plan.map_filter != MapFilter::Relief || plan.outside_model.is_some() {
+            return None;
+        }
+        let own_p99 = stats.relief_read_p99? * plan.relief_read_scale;
+        if own_p99.is_nan() || own_p99 <= plan.budget.p99 {
+            return None;
+        }
+        let k = RELIEF_REFINES
+            .iter()
+            .copied()
+            .find(|&k| k > plan.relief_refine)?;
+        let f = plan.features.modelled(MapFilter::Relief).refined(k);
+        let predicted = self.model.predict(plan.points_per_pixel, &f);
+        let b = plan.budget;
+        Some(Plan {
+            relief_refine: k,
+            relief_read_scale: self.model.read_scale(k),
+            predicted,
+            meets_budget: predicted.median <= b.median
+                && predicted.p99 <= b.p99
+                && predicted.total <= b.total,
+            renders: plan.renders + 1,
+            settings: Settings {
+                relief_refine: k,
+                ..plan.settings.clone()
+            },
+            ..plan.clone()
+        })
+    }
+
+    /// Plans the frame of `scene` from `pose`, renders it with `render` and observes it,
+    /// rendering it again while it is over its own estimate ([`Planner::refined_again`]):
+    /// the last frame and its plan. `render` renders the frame at the settings it is given
+    /// (a caller may add to them, such as the depth plane).
+    pub fn render<E>(
+        &self,
+        scene: &Scene,
+        pose: &Pose,
+        mut render: impl FnMut(&Settings) -> Result<crate::render::Frame, E>,
+    ) -> Result<(Plan, crate::render::Frame), E> {
+        let mut plan = self.plan(scene, pose);
+        loop {
+            let frame = render(&plan.settings)?;
+            plan.observe(&frame.stats);
+            match self.refined_again(&plan, &frame.stats) {
+                Some(next) => plan = next,
+                None => return Ok((plan, frame)),
+            }
         }
     }
 }
@@ -2002,6 +2075,7 @@ mod tests {
             },
             meets_budget: true,
             outside_model: None,
+            renders: 1,
             budget: Budget::default(),
             features: Features::default(),
             settings: Settings::default(),

@@ -152,12 +152,15 @@ impl FrameMaker {
         let mut t = FrameTimings::default();
         let t0 = Instant::now();
         let cfg = &self.config;
-        let mut plan = self.planner.as_ref().map(|p| p.plan(&cfg.scene, pose));
-        let settings = plan.as_ref().map_or(&cfg.settings, |p| &p.settings);
-        let frame = self.renderer.render(&cfg.scene, pose, settings)?;
-        if let Some(p) = plan.as_mut() {
-            p.observe(&frame.stats);
-        }
+        let renderer = &mut self.renderer;
+        let (plan, frame) = match &self.planner {
+            Some(p) => {
+                let (plan, frame) =
+                    p.render(&cfg.scene, pose, |s| renderer.render(&cfg.scene, pose, s))?;
+                (Some(plan), frame)
+            }
+            None => (None, renderer.render(&cfg.scene, pose, &cfg.settings)?),
+        };
         t.render = ms(t0);
         let t0 = Instant::now();
         // Eq. 45 per band: one plane per band (each band's own image when its distortion

@@ -336,11 +336,8 @@ fn another_camera_is_rendered_for_the_client_only_with_a_warning() {
     i.distortion = Default::default();
     let mut pose = c.pose;
     pose.frame_id = 0;
-    let settings = optistim::app::render::frame_settings(&c, &pose);
-    let f = optistim::render::Renderer::new(1)
-        .unwrap()
-        .render(&c.scene, &pose, &settings)
-        .unwrap();
+    let mut renderer = optistim::render::Renderer::new(1).unwrap();
+    let f = optistim::app::render::frame(&c, &pose, &mut renderer).unwrap();
     let radiance = c.scene.sun.radiance_integral(c.power_band_m);
     let got: Vec<f32> = data
         .chunks_exact(4)

@@ -182,18 +182,13 @@ impl<'c> Run<'c> {
         let config = self.config;
         let det = &config.scene.camera.detector;
         let t0 = Instant::now();
-        let (plan, frame) = match &self.planner {
-            Some(p) => {
-                let (plan, frame) = p.render(&config.scene, pose, |s| {
-                    renderer.render(&config.scene, pose, s)
-                })?;
-                (Some(plan), frame)
-            }
-            None => (
-                None,
-                renderer.render(&config.scene, pose, &config.settings)?,
-            ),
-        };
+        let (plan, frame) = crate::fidelity::budget::render_as_planned(
+            self.planner.as_ref(),
+            &config.scene,
+            pose,
+            &config.settings,
+            |s| renderer.render(&config.scene, pose, s),
+        )?;
         let td = Instant::now();
         let size = (frame.width, frame.height);
         let band = |b| frame.band(b);

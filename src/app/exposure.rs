@@ -207,8 +207,7 @@ pub fn run(
     let mut pooled_counts = vec![(0.0, 0.0); grid.len()];
     let mut pooled_n = 0.0;
     for (i, (t_s, pose)) in poses.iter().enumerate() {
-        let (settings, _) = products::settings_for(config, planner.as_ref(), pose);
-        let frame = renderer.render(&config.scene, pose, &settings)?;
+        let (frame, _, _) = products::render_frame(config, planner.as_ref(), pose, &mut renderer)?;
         let s = active_signals(&det.signal(&frame.pl, k_signal));
         let (t_lo, t_hi) = bracket(&s, plan.keep, fwc, floor);
         let row: Vec<Loss> = grid.iter().map(|&t| loss_at(&s, t, fwc, floor)).collect();

@@ -15,7 +15,7 @@ use crate::config::Config;
 use crate::detector::Layout;
 use crate::fidelity::budget::{Plan, Planner};
 use crate::io::fits::{self, Bitpix, Card, Value};
-use crate::render::{FrameStats, Renderer, Settings};
+use crate::render::{Frame, FrameStats, Renderer, Settings};
 use crate::scene::Pose;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -80,46 +80,39 @@ impl ImageSet {
     }
 }
 
-/// The settings `pose` of `config` is rendered with: the scene's, or what `planner` chooses
-/// for the pose (with the plan); depth on.
-pub fn settings_for(
+/// Renders `pose` of `config` at the scene's settings, or as `planner` plans it (rendered
+/// again while over its own estimate, [`Planner::render`]); depth on: the frame, the
+/// settings it was rendered with last, and the plan.
+pub fn render_frame(
     config: &Config,
     planner: Option<&Planner>,
     pose: &Pose,
-) -> (Settings, Option<Plan>) {
-    let plan = planner.map(|p| p.plan(&config.scene, pose));
-    let mut settings = plan
-        .as_ref()
-        .map_or_else(|| config.settings.clone(), |p| p.settings.clone());
-    settings.depth = true;
-    (settings, plan)
+    renderer: &mut Renderer,
+) -> Result<(Frame, Settings, Option<Plan>), crate::render::RenderError> {
+    let with_depth = |s: &Settings| Settings {
+        depth: true,
+        ..s.clone()
+    };
+    let (plan, frame) = crate::fidelity::budget::render_as_planned(
+        planner,
+        &config.scene,
+        pose,
+        &config.settings,
+        |s| renderer.render(&config.scene, pose, &with_depth(s)),
+    )?;
+    let settings = with_depth(plan.as_ref().map_or(&config.settings, |p| &p.settings));
+    Ok((frame, settings, plan))
 }
 
-/// Renders `pose` of `config` and runs the detector. `planner` is `config.planner()`, made
-/// once per scene by the caller (it probes the scene).
+/// Renders `pose` of `config` ([`render_frame`]) and runs the detector. `planner` is
+/// `config.planner()`, made once per scene by the caller (it probes the scene).
 pub fn make(
     config: &Config,
     planner: Option<&Planner>,
     pose: &Pose,
     renderer: &mut Renderer,
 ) -> Result<(FrameMeta, ImageSet), AppError> {
-    let with_depth = |s: &Settings| Settings {
-        depth: true,
-        ..s.clone()
-    };
-    let (frame, plan) = match planner {
-        Some(p) => {
-            let (plan, frame) = p.render(&config.scene, pose, |s| {
-                renderer.render(&config.scene, pose, &with_depth(s))
-            })?;
-            (frame, Some(plan))
-        }
-        None => (
-            renderer.render(&config.scene, pose, &with_depth(&config.settings))?,
-            None,
-        ),
-    };
-    let settings = with_depth(plan.as_ref().map_or(&config.settings, |p| &p.settings));
+    let (frame, settings, plan) = render_frame(config, planner, pose, renderer)?;
     Ok(detect(config, pose, frame, settings, plan))
 }
 

@@ -83,11 +83,15 @@ pub enum Method {
     Reference(ReferenceSettings, ReferenceMethod),
 }
 
-/// The settings `optistim render` renders `pose` of `config` with: the scene's, or what the
-/// fidelity planner chooses for the pose; depth on. (The compatible endpoints render with
-/// these too, so that their images equal `optistim render`'s.)
-pub fn frame_settings(config: &Config, pose: &crate::scene::Pose) -> crate::render::Settings {
-    products::settings_for(config, config.planner().as_ref(), pose).0
+/// `pose` of `config` rendered as `optistim render` renders it: at the scene's settings, or
+/// as the fidelity planner plans it ([`products::render_frame`]). (The compatible endpoints
+/// render with this too, so that their images equal `optistim render`'s.)
+pub fn frame(
+    config: &Config,
+    pose: &crate::scene::Pose,
+    renderer: &mut crate::render::Renderer,
+) -> Result<crate::render::Frame, crate::render::RenderError> {
+    products::render_frame(config, config.planner().as_ref(), pose, renderer).map(|(f, _, _)| f)
 }
 
 /// Renders the scene of `config` and writes the outputs into `out`.

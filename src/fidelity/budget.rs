@@ -53,6 +53,12 @@
 //! is read over each pixel's footprint at the level of detail it spans
 //! ([`crate::render::MapFilter::Pixel`]).
 //!
+//! A frame that reads the relief over each pixel also estimates its reads' error once it is
+//! rendered ([`Plan::observe`]); where that estimate is over the budget's p99, the frame is
+//! rendered again with its reads refined twice as finely, up to 8 times
+//! ([`Planner::render`], [`Planner::refined_again`]), and reports how many times it was
+//! rendered (`renders`).
+//!
 //! A frame outside what the model was fitted on ([`Planner::outside_model`]: the camera
 //! within 0.05 radii of the body, a body more elongated than 2 : 1, a DEM taller than 0.02
 //! radii, an opposition surge narrower than 0.01) is not predicted: it is rendered at the
@@ -1799,6 +1805,23 @@ impl Planner {
                 None => return Ok((plan, frame)),
             }
         }
+    }
+}
+
+/// The frame of `scene` from `pose` as `planner` plans and renders it ([`Planner::render`]),
+/// or at `settings` without a planner (`fidelity = "fixed"`): the frame and its plan.
+pub fn render_as_planned<E>(
+    planner: Option<&Planner>,
+    scene: &Scene,
+    pose: &Pose,
+    settings: &Settings,
+    mut render: impl FnMut(&Settings) -> Result<crate::render::Frame, E>,
+) -> Result<(Option<Plan>, crate::render::Frame), E> {
+    match planner {
+        Some(p) => p
+            .render(scene, pose, render)
+            .map(|(plan, frame)| (Some(plan), frame)),
+        None => render(settings).map(|frame| (None, frame)),
     }
 }
 

@@ -153,14 +153,13 @@ impl FrameMaker {
         let t0 = Instant::now();
         let cfg = &self.config;
         let renderer = &mut self.renderer;
-        let (plan, frame) = match &self.planner {
-            Some(p) => {
-                let (plan, frame) =
-                    p.render(&cfg.scene, pose, |s| renderer.render(&cfg.scene, pose, s))?;
-                (Some(plan), frame)
-            }
-            None => (None, renderer.render(&cfg.scene, pose, &cfg.settings)?),
-        };
+        let (plan, frame) = crate::fidelity::budget::render_as_planned(
+            self.planner.as_ref(),
+            &cfg.scene,
+            pose,
+            &cfg.settings,
+            |s| renderer.render(&cfg.scene, pose, s),
+        )?;
         t.render = ms(t0);
         let t0 = Instant::now();
         // Eq. 45 per band: one plane per band (each band's own image when its distortion

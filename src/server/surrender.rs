@@ -646,15 +646,13 @@ impl Session {
                             .to_string(),
                     );
                 }
-                let settings = crate::app::render::frame_settings(&c, &c.pose);
                 let renderer = match &mut self.renderer {
                     Some(r) => r,
                     None => self
                         .renderer
                         .insert(Renderer::new(c.settings.threads).map_err(|e| e.to_string())?),
                 };
-                renderer
-                    .render(&c.scene, &c.pose, &settings)
+                crate::app::render::frame(&c, &c.pose, renderer)
                     .map_err(|e| e.to_string())?
                     .pl
             }

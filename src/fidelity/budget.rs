@@ -1739,9 +1739,7 @@ impl Planner {
             settings,
         }
     }
-}
 
-impl Planner {
     /// The plan of a frame rendered at `plan` (with `stats`) again with its reads refined
     /// twice as finely, where its own estimate of its reads' p99 (times the factor at its
     /// refinement, [`Plan::observe`]) is over the budget's and a finer refinement is left; else
@@ -1751,10 +1749,10 @@ impl Planner {
     /// The model plans from features probed on a coarse grid, which can miss what only the
     /// rendered reads see: on Artemis I row 730 (191 km up, 108 deg of phase) the Sun's
     /// shadows and the ridges' hiding leave the light in strips 0.02-0.03 px across, and
-    /// the plan (`relief_refine` 2) measured p99 7.0e-2, where its reads' own estimate said
-    /// 5.4e-2; refined 4 and 8 times it measured 3.5e-2 and 1.7e-2 (`docs/performance.md`,
-    /// "A frame over its own estimate renders again"). A frame outside the model
-    /// (`outside_model`) is at the ladder's top already and is left.
+    /// the plan (1 quadrangle per pixel, `relief_refine` 2) measured p99 7.0e-2, where its
+    /// reads' own estimate said 5.4e-2; rendered again at 4, then 8, it measured 1.67e-2
+    /// (`docs/performance.md`, "A frame over its own estimate renders again"). A frame
+    /// outside the model (`outside_model`) is at the ladder's top already and is left.
     pub fn refined_again(&self, plan: &Plan, stats: &crate::render::FrameStats) -> Option<Plan> {
         if plan.map_filter != MapFilter::Relief || plan.outside_model.is_some() {
             return None;

@@ -512,11 +512,7 @@ impl Plan {
     ///
     /// [`FrameStats::relief_read_p99`]: crate::render::FrameStats::relief_read_p99
     pub fn observe(&mut self, stats: &crate::render::FrameStats) {
-        if let Some(estimate) = stats
-            .relief_read_p99
-            .filter(|_| self.map_filter == MapFilter::Relief)
-        {
-            let p99 = estimate * self.relief_read_scale;
+        if let Some(p99) = self.own_read_p99(stats) {
             if p99 > self.predicted.p99 {
                 self.predicted.p99 = p99;
                 self.meets_budget &= p99 <= self.budget.p99;
@@ -545,6 +541,18 @@ impl Plan {
                 self.meets_budget = false;
             }
         }
+    }
+
+    /// The frame's own estimate of its p99 where it read the relief over each pixel: its
+    /// reads' estimate ([`FrameStats::relief_read_p99`]) times the factor at its refinement
+    /// ([`Plan::relief_read_scale`]); `None` for any other frame.
+    ///
+    /// [`FrameStats::relief_read_p99`]: crate::render::FrameStats::relief_read_p99
+    pub fn own_read_p99(&self, stats: &crate::render::FrameStats) -> Option<f64> {
+        stats
+            .relief_read_p99
+            .filter(|_| self.map_filter == MapFilter::Relief)
+            .map(|estimate| estimate * self.relief_read_scale)
     }
 }
 
@@ -1754,10 +1762,10 @@ impl Planner {
     /// (`docs/performance.md`, "A frame over its own estimate renders again"). A frame
     /// outside the model (`outside_model`) is at the ladder's top already and is left.
     pub fn refined_again(&self, plan: &Plan, stats: &crate::render::FrameStats) -> Option<Plan> {
-        if plan.map_filter != MapFilter::Relief || plan.outside_model.is_some() {
+        if plan.outside_model.is_some() {
             return None;
         }
-        let own_p99 = stats.relief_read_p99? * plan.relief_read_scale;
+        let own_p99 = plan.own_read_p99(stats)?;
         if own_p99.is_nan() || own_p99 <= plan.budget.p99 {
             return None;
         }

@@ -416,9 +416,27 @@ pub struct ErrorModel {
 /// 3.4 times below it at `k` 1 at 130 deg of phase on the build before the reads' weights
 /// (`docs/performance.md`, "The model refitted on this build's frames", "The planner
 /// refitted on the weighted reads").
+///
+/// At `relief_refine` 1 the frames whose lit surface lies mostly under the steep slopes'
+/// shadows ([`Features::shadow_share`] at least [`SHADOWED_SHARE`]) get a factor of their own
+/// (`shadowed`), as do the others. A pixel finer than a texel is read once there, and the
+/// quarter its estimate compares it with lies on its neighbours, so under long shadows both
+/// miss the slivers of light between them and the estimate reads 3 times below the measured
+/// p99 (NRHO rows 152 and 167, shadow share 0.96 and 1.0: 3.09, 3.07); elsewhere it reads
+/// the shading's change from pixel to pixel and is twice the measured (NRHO apolune and rows
+/// 90, 120 and 138, shadow share 0.38-0.67: 0.25-0.50). One factor for both asked the second
+/// kind to re-render frames that met the budget (Artemis I row 470, `docs/performance.md`,
+/// "The reads' factor at one read a pixel, by shadow"). From `relief_refine` 2 every pixel
+/// is read at least 3 times a side and again where its reads disagree, and one factor holds
+/// (0.05-0.21 measured against estimated either way).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ReadScale {
     pub relief_refine: u32,
+    /// At `relief_refine` 1: whether it is the factor of the frames mostly under shadows
+    /// (`true`) or of the others (`false`); `None` (and in files fitted before the split):
+    /// every frame at that refinement.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shadowed: Option<bool>,
     pub scale: f64,
     /// The frames it was fitted on.
     pub frames: usize,
@@ -426,6 +444,22 @@ pub struct ReadScale {
 
 /// Fewest frames at one refinement for a [`ReadScale`] of its own.
 const READ_SCALE_MIN_FRAMES: usize = 4;
+
+/// The share of the lit surface under the steep slopes' shadows ([`Features::shadow_share`])
+/// from which a frame read once a pixel (`relief_refine` 1) takes the shadowed frames'
+/// factor on its own estimate ([`ReadScale`]). The fitted frames leave it between 0.67 (NRHO
+/// row 138, estimate twice the measured) and 0.96 (row 152, a third of it); of the streams'
+/// verified frames, NRHO row 565 at 0.84 measured 6 times its estimate at one read a pixel,
+/// and every frame at 0.52 or less at most 0.96 times it.
+pub const SHADOWED_SHARE: f64 = 0.75;
+
+impl ReadScale {
+    /// The class a frame at `relief_refine` showing `features` takes its factor from: at 1,
+    /// whether it is mostly under shadows ([`SHADOWED_SHARE`]); `None` from 2 up.
+    pub fn class(relief_refine: u32, features: &Features) -> Option<bool> {
+        (relief_refine <= 1).then(|| features.shadow_share >= SHADOWED_SHARE)
+    }
+}
 
 /// The model fitted on the sweep of `docs/performance.md` (`config/error_model.toml`).
 const DEFAULT_MODEL: &str = include_str!("../../config/error_model.toml");
@@ -642,15 +676,18 @@ impl ErrorModel {
     }
 
     /// The factor on a frame's own estimate of its reads' p99 at `relief_refine`
-    /// ([`Plan::observe`]): the [`ReadScale`] fitted at that refinement; at one the fit did
-    /// not see, the largest fitted (at least 1); 1 (the estimate as it is) in a model fitted
-    /// on none.
-    pub fn read_scale(&self, relief_refine: u32) -> f64 {
-        match self
-            .relief_read
-            .iter()
-            .find(|s| s.relief_refine == relief_refine)
-        {
+    /// ([`Plan::observe`]) for a frame showing `features`: the [`ReadScale`] fitted at that
+    /// refinement, at 1 the one of the frame's class ([`ReadScale::class`]) where the fit has
+    /// it, else the one of every frame there; at one the fit did not see, the largest fitted
+    /// (at least 1); 1 (the estimate as it is) in a model fitted on none.
+    pub fn read_scale(&self, relief_refine: u32, features: &Features) -> f64 {
+        let class = ReadScale::class(relief_refine, features);
+        let at = |class: Option<bool>| {
+            self.relief_read
+                .iter()
+                .find(|s| s.relief_refine == relief_refine && s.shadowed == class)
+        };
+        match at(class).or_else(|| at(None)) {
             Some(s) => s.scale,
             None => self.relief_read.iter().map(|s| s.scale).fold(1.0, f64::max),
         }
@@ -678,8 +715,8 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 
 /// Per refinement, the factor that makes the frames' own estimates of their reads' p99 bound
 /// what they measured, over the `rows` whose pixels read the relief from one quadrangle per
-/// pixel up ([`ReliefKind::Reads`], [`ReadScale`]; a refinement with fewer than
-/// [`READ_SCALE_MIN_FRAMES`] such frames gets none).
+/// pixel up ([`ReliefKind::Reads`], [`ReadScale`]; at 1, per class, [`ReadScale::class`]; a
+/// refinement or class with fewer than [`READ_SCALE_MIN_FRAMES`] such frames gets none).
 fn fit_read_scales(rows: &[FitRow]) -> Vec<ReadScale> {
     let mut scales: Vec<ReadScale> = Vec::new();
     for r in rows.iter().filter(|r| {
@@ -689,21 +726,26 @@ fn fit_read_scales(rows: &[FitRow]) -> Vec<ReadScale> {
             && r.p99.is_finite()
     }) {
         let k = r.features.relief_refine.max(1.0) as u32;
+        let shadowed = ReadScale::class(k, &r.features);
         let ratio = r.p99 / r.relief_read_p99;
-        match scales.iter_mut().find(|s| s.relief_refine == k) {
+        match scales
+            .iter_mut()
+            .find(|s| s.relief_refine == k && s.shadowed == shadowed)
+        {
             Some(s) => {
                 s.scale = s.scale.max(ratio);
                 s.frames += 1;
             }
             None => scales.push(ReadScale {
                 relief_refine: k,
+                shadowed,
                 scale: ratio,
                 frames: 1,
             }),
         }
     }
     scales.retain(|s| s.frames >= READ_SCALE_MIN_FRAMES);
-    scales.sort_by_key(|s| s.relief_refine);
+    scales.sort_by_key(|s| (s.relief_refine, s.shadowed));
     scales
 }
 
@@ -1737,7 +1779,7 @@ impl Planner {
             } else {
                 1
             },
-            relief_read_scale: self.model.read_scale(settings.relief_refine),
+            relief_read_scale: self.model.read_scale(settings.relief_refine, &features),
             predicted: chosen.predicted,
             meets_budget: meets,
             outside_model: outside,
@@ -1778,7 +1820,7 @@ impl Planner {
         let b = plan.budget;
         Some(Plan {
             relief_refine: k,
-            relief_read_scale: self.model.read_scale(k),
+            relief_read_scale: self.model.read_scale(k, &plan.features),
             predicted,
             meets_budget: predicted.median <= b.median
                 && predicted.p99 <= b.p99
@@ -2175,6 +2217,7 @@ mod tests {
             scales,
             vec![ReadScale {
                 relief_refine: 8,
+                shadowed: None,
                 scale: 0.25,
                 frames: 4
             }]
@@ -2183,20 +2226,88 @@ mod tests {
             relief_read: scales,
             ..ErrorModel::shipped().unwrap()
         };
-        assert_eq!(model.read_scale(8), 0.25);
-        assert_eq!(model.read_scale(2), 1.0);
+        let plain = Features::default();
+        assert_eq!(model.read_scale(8, &plain), 0.25);
+        assert_eq!(model.read_scale(2, &plain), 1.0);
         let model = ErrorModel {
             relief_read: vec![ReadScale {
                 relief_refine: 1,
+                shadowed: None,
                 scale: 3.0,
                 frames: 5,
             }],
             ..model
         };
-        assert_eq!(model.read_scale(4), 3.0);
+        assert_eq!(model.read_scale(4, &plain), 3.0);
         // The model file keeps them.
         let text = model.to_toml();
         assert_eq!(ErrorModel::parse(&text, "t").unwrap(), model);
+    }
+
+    /// At one read a pixel the frames mostly under shadows and the others get a factor each;
+    /// a class the fit has too few frames of takes the largest factor fitted (at least 1),
+    /// never the other class's; from 2 up, one factor for all.
+    #[test]
+    fn one_read_a_pixel_is_scaled_by_how_much_of_the_frame_is_shadowed() {
+        let read = |k: f64, shadow_share: f64, p99: f64, estimate: f64| FitRow {
+            points_per_px: 1.0,
+            features: Features {
+                relief: 1.0,
+                relief_per_pixel: 1.0,
+                relief_refine: k,
+                shadow_share,
+                ..Default::default()
+            },
+            median: 1e-4,
+            p99,
+            total: 1e-5,
+            relief_read_p99: estimate,
+        };
+        let sunny: Vec<FitRow> = [(0.2, 0.125), (0.4, 0.25), (0.5, 0.5), (0.6, 0.5)]
+            .iter()
+            .map(|&(s, estimate)| read(1.0, s, 0.05, estimate))
+            .collect();
+        let shadowed: Vec<FitRow> = [0.8, 0.9, 0.95, 1.0]
+            .iter()
+            .map(|&s| read(1.0, s, 0.375, 0.125))
+            .collect();
+        let refined: Vec<FitRow> = [0.3, 0.5, 0.9, 1.0]
+            .iter()
+            .map(|&s| read(2.0, s, 0.03125, 0.25))
+            .collect();
+        let rows: Vec<FitRow> = [sunny.clone(), shadowed.clone(), refined.clone()].concat();
+        let scales = fit_read_scales(&rows);
+        let scale = |k: u32, shadowed: Option<bool>| {
+            scales
+                .iter()
+                .find(|s| s.relief_refine == k && s.shadowed == shadowed)
+                .map(|s| (s.scale, s.frames))
+        };
+        assert_eq!(scale(1, Some(false)), Some((0.4, 4)));
+        assert_eq!(scale(1, Some(true)), Some((3.0, 4)));
+        assert_eq!(scale(2, None), Some((0.125, 4)));
+        assert_eq!(scales.len(), 3);
+        let model = ErrorModel {
+            relief_read: scales,
+            ..ErrorModel::shipped().unwrap()
+        };
+        let share = |s: f64| Features {
+            shadow_share: s,
+            ..Default::default()
+        };
+        assert_eq!(model.read_scale(1, &share(0.3)), 0.4);
+        assert_eq!(model.read_scale(1, &share(SHADOWED_SHARE)), 3.0);
+        assert_eq!(model.read_scale(2, &share(1.0)), 0.125);
+        assert_eq!(model.read_scale(2, &share(0.0)), 0.125);
+        let text = model.to_toml();
+        assert_eq!(ErrorModel::parse(&text, "t").unwrap(), model);
+        // Without the shadowed frames, a shadowed frame is not given the others' factor.
+        let model = ErrorModel {
+            relief_read: fit_read_scales(&[sunny, refined].concat()),
+            ..model
+        };
+        assert_eq!(model.read_scale(1, &share(0.9)), 1.0);
+        assert_eq!(model.read_scale(1, &share(0.1)), 0.4);
     }
 
     #[test]

@@ -41,13 +41,14 @@
 //! up, and below it; [`FigureModel::margin_at`]): the model of every frame without a DEM is
 //! what it was without them.
 //!
-//! The planner climbs a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
-//! pixel, the midpoint rule, more boundary nodes at the top) and takes the first rung whose
-//! prediction meets the budget. Where each pixel reads the relief, it climbs the ladder again
-//! at each refinement of those reads (`relief_refine` 1, 2, 4, 8: `k` in the relief term,
-//! [`Features::relief_refine`]), the refinement costing more than the quadrangles; where a
-//! pixel is finer than that but no rung of the quadrangles is predicted to meet the budget
-//! under the relief's shadows, it climbs those reads' ladder after theirs. It models
+//! The planner predicts a ladder of settings ([`Planner::rung`]: 1/16 to 16 quadrangles per
+//! pixel, the midpoint rule, more boundary nodes at the top) and takes the cheapest rung whose
+//! prediction meets the budget. Where each pixel reads the relief, the ladder is predicted
+//! again at each refinement of those reads (`relief_refine` 1, 2, 4, 8: `k` in the relief
+//! term, [`Features::relief_refine`]); where a pixel is finer than that and the relief casts
+//! shadows, both the quadrangles' ladder and those reads' are candidates, and what each
+//! costs ([`Candidate::cost`]: marched shadows on the quadrangles, the reads at their
+//! refinement) decides between them. It models
 //! no more than the frame needs: shadows are cast only when the Sun is low enough over enough
 //! of the lit surface for the relief to hide it ([`Planner::shadowing`]), and the albedo map
 //! is read over each pixel's footprint at the level of detail it spans
@@ -1105,6 +1106,58 @@ struct Candidate {
     predicted: Predicted,
 }
 
+impl Candidate {
+    /// What rendering the candidate costs, relative to one quadrangle per pixel whose
+    /// shadows are marched, per lit pixel ([`QUADRANGLE_COST_UNSHADOWED`],
+    /// [`RELIEF_READ_COST`]): `p` such quadrangles cost `p`; quadrangles whose shadows are not
+    /// marched (the horizon map, none, or under the relief's reads, where the quadrangles
+    /// integrate the smooth shape unshadowed) cost less; each pixel's reads of the relief add
+    /// their cost at their refinement. Both scale with the lit pixels, so the frame's size
+    /// leaves their ratio; the map's reads over each pixel, which every candidate of a frame
+    /// shares, are left out.
+    fn cost(&self, shadows: SelfShadowing) -> f64 {
+        let quadrangle =
+            if self.map_filter != MapFilter::Relief && shadows == SelfShadowing::RayMarching {
+                1.0
+            } else {
+                QUADRANGLE_COST_UNSHADOWED
+            };
+        let reads = match self.map_filter {
+            MapFilter::Relief => RELIEF_REFINES
+                .iter()
+                .position(|&k| k >= self.relief_refine)
+                .map_or(RELIEF_READ_COST[RELIEF_READ_COST.len() - 1], |i| {
+                    RELIEF_READ_COST[i]
+                }),
+            _ => 0.0,
+        };
+        self.points_per_px * quadrangle + reads
+    }
+}
+
+/// The cost of one quadrangle per pixel whose shadows are not marched, against one whose
+/// shadows are ([`Candidate::cost`]). The fixed rungs of the budget checks at 1024 x 1024
+/// (the horizon map's shadows, against the planner's marched ones on the same frames, per
+/// quadrangle per pixel): NRHO rows 178 and 180 0.36 and 0.39, Artemis I rows 700 and 647
+/// 0.53 and 0.68; the relief's quadrangles, unshadowed, cost less than the horizon map's.
+const QUADRANGLE_COST_UNSHADOWED: f64 = 0.5;
+
+/// The cost of each pixel's reads of the relief at `relief_refine` 1, 2, 4 and 8
+/// ([`RELIEF_REFINES`]), in marched quadrangles per pixel ([`Candidate::cost`]). The relief
+/// rungs of the budget checks at 2 per pixel (their quadrangles at
+/// [`QUADRANGLE_COST_UNSHADOWED`] taken off) against the planner's marched quadrangles on
+/// the same frames (`docs/performance.md`, "Between the two ladders by cost"):
+///
+/// | frame | `k` 1 | 2 | 4 | 8 |
+/// | --- | --- | --- | --- | --- |
+/// | NRHO 178 (3,249 km, 94 deg) | 0.87 | 11.5 | 16.5 | 31 |
+/// | NRHO 180 (3,297 km, 85 deg) | 1.16 | 12.3 | 17.5 | 21 |
+/// | Artemis I 700 (49 deg) | 0.38 | 10.1 | 12.2 | 17.7 |
+/// | Artemis I 647 (3 deg) | 0.59 | 9.4 | 13.5 | 22.3 |
+///
+/// The largest of each column, so that a candidate's cost is not understated.
+const RELIEF_READ_COST: [f64; 4] = [1.2, 12.5, 17.5, 31.0];
+
 /// The quadrangles per pixel of the ladder's rungs, cheapest first.
 pub const LADDER: [f64; 9] = [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
 
@@ -1575,8 +1628,8 @@ impl Planner {
     /// quadrangle's light over the pixels it covers, left the LOLA Moon at the NRHO's apolune
     /// (2.4 DEM texels a pixel) at median 1.0e-2 and 2.6e-3 with 2 and 16 quadrangles per
     /// pixel; read over each pixel, 8.3e-4 at 1 (`docs/performance.md`, "The relief over
-    /// each pixel"). Nearer, [`Planner::plan`] falls back on those reads where no rung of
-    /// the quadrangles is predicted to meet the budget.
+    /// each pixel"). Nearer, [`Planner::plan`] takes those reads where they are predicted
+    /// to meet the budget at a lower cost than the quadrangles.
     pub fn map_filter(&self, f: &Features) -> MapFilter {
         if f.lit_px > 0.0 && f.lit_px < f.edge_px {
             MapFilter::Area
@@ -1658,8 +1711,9 @@ impl Planner {
             .collect()
     }
 
-    /// The cheapest rung predicted to meet the budget for the frame of `scene` from `pose`;
-    /// for a ray-cast frame, its edges refined to the budget as it is cast.
+    /// The cheapest rung ([`Candidate::cost`]) predicted to meet the budget for the frame of
+    /// `scene` from `pose`; for a ray-cast frame, its edges refined to the budget as it is
+    /// cast.
     pub fn plan(&self, scene: &Scene, pose: &Pose) -> Plan {
         let features = self.probe.features(scene, pose);
         if scene.is_ray_cast() {
@@ -1682,15 +1736,17 @@ impl Planner {
         // 152 and 167, 0.19 and 0.09 texels a pixel) they measured p99 0.12 at 16 per pixel,
         // where each pixel's reads, refined 8 times, measured 2.9e-2 and 2.8e-2 at 1/16
         // (`docs/performance.md`, "The relief over each pixel at 130 degrees"). Those reads
-        // cost about a second a frame and more (a shadow ray a read), so they come after the
-        // quadrangles' ladder and are taken only where no rung of it is predicted to meet
-        // the budget.
+        // cost about a second a frame and more (a shadow ray a read), and the quadrangles'
+        // marched shadows about as much per quadrangle per pixel, so both ladders are
+        // candidates and the cheapest that meets the budget is taken ([`Candidate::cost`]): at
+        // the first perilune the quadrangles met it at 8 and 16 per pixel in 10.0 and 18.0 s,
+        // where the reads at 2 per pixel, `k` 1, met it in 2.1 and 2.4 s
+        // (`docs/performance.md`, "Between the two ladders by cost").
         if map_filter == MapFilter::Pixel
             && outside.is_none()
             && self.relief_fitted
             && self.finest_over_map_texels.is_some()
             && shadows != SelfShadowing::Off
-            && !predicted.iter().any(|c| fits(&c.predicted))
         {
             predicted.extend(self.ladder(&features, MapFilter::Relief));
         }
@@ -1720,7 +1776,12 @@ impl Planner {
             (predicted[0], true)
         } else if outside.is_some() {
             (top, false)
-        } else if let Some(&chosen) = predicted.iter().find(|c| fits(&c.predicted)) {
+        } else if let Some(&chosen) = predicted
+            // The cheapest candidate predicted to meet the budget (the first of equals).
+            .iter()
+            .filter(|c| fits(&c.predicted))
+            .min_by(|a, b| a.cost(shadows).total_cmp(&b.cost(shadows)))
+        {
             (chosen, true)
         } else {
             // Where no candidate is good enough on every figure (the relief's reads at 130

@@ -40,7 +40,9 @@
 //! ```
 //!
 //! References are kept in `DIR/references/` under the SHA-256 of the scene text, the pose and
-//! the reference's settings, so a sweep run again (more settings, more repeats) reuses them.
+//! the reference's settings, so a sweep run again (more settings, more repeats) reuses them;
+//! a scene without a `patch` is keyed by its file's own text, as `verify-budget` keys it, so
+//! the references of a budget check can be copied into a sweep's folder and back.
 
 pub mod chart;
 
@@ -433,11 +435,16 @@ fn bad(file: &Path, what: impl std::fmt::Display) -> AppError {
 fn load_scene(dir: &Path, raw: &RawScene, sweep_file: &Path) -> Result<SweepScene, AppError> {
     let path = dir.join(&raw.file);
     let text = std::fs::read_to_string(&path).map_err(|e| bad(&path, e))?;
-    let mut table: toml::Table = toml::from_str(&text).map_err(|e| bad(&path, e))?;
-    if let Some(p) = &raw.patch {
-        crate::config::merge_toml(&mut table, p);
-    }
-    let text = toml::to_string(&table).map_err(|e| bad(sweep_file, e))?;
+    // Unpatched, the file's own text: the references it keys are those `verify-budget`
+    // caches for the same file, pose and settings.
+    let text = match &raw.patch {
+        Some(p) => {
+            let mut table: toml::Table = toml::from_str(&text).map_err(|e| bad(&path, e))?;
+            crate::config::merge_toml(&mut table, p);
+            toml::to_string(&table).map_err(|e| bad(sweep_file, e))?
+        }
+        None => text,
+    };
     let label = path.display().to_string();
     let mut config = crate::config::parse(&text, &label)?;
     if let Some(t) = &raw.trajectory {
@@ -582,29 +589,7 @@ pub fn cached_reference(
     method: ReferenceMethod,
     dir: &Path,
 ) -> Result<CachedReference, AppError> {
-    let method = method.resolve(scene, p);
-    let how = if method == ReferenceMethod::Exact {
-        format!("exact model {EXACT_MODEL}")
-    } else {
-        format!(
-            "{:?}{}",
-            settings,
-            // Model 1 (no suffix) keeps the caches made before the model was numbered.
-            if REFERENCE_MODEL == 1 {
-                String::new()
-            } else {
-                format!(" model {REFERENCE_MODEL}")
-            }
-        )
-    };
-    let key = crate::io::sha256_hex(
-        format!(
-            "{}\n{:?} {:?} {:?}\n{}",
-            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, how,
-        )
-        .as_bytes(),
-    );
-    let file = dir.join(format!("{}.f64", &key[..16]));
+    let file = reference_file(text, scene, p, settings, method, dir);
     let n = {
         let i = &scene.camera.intrinsics;
         (i.width_px * i.height_px) as usize
@@ -634,6 +619,41 @@ pub fn cached_reference(
         .collect();
     std::fs::write(&file, bytes).map_err(|e| bad(&file, e))?;
     Ok(CachedReference::of(&head, r.frame.pl, false))
+}
+
+/// The file in `dir` that caches the reference of `scene` from `p` by `method`
+/// ([`cached_reference`]): named by the first 16 hex digits of its key.
+pub fn reference_file(
+    text: &str,
+    scene: &crate::scene::Scene,
+    p: &crate::scene::Pose,
+    settings: &ReferenceSettings,
+    method: ReferenceMethod,
+    dir: &Path,
+) -> PathBuf {
+    let method = method.resolve(scene, p);
+    let how = if method == ReferenceMethod::Exact {
+        format!("exact model {EXACT_MODEL}")
+    } else {
+        format!(
+            "{:?}{}",
+            settings,
+            // Model 1 (no suffix) keeps the caches made before the model was numbered.
+            if REFERENCE_MODEL == 1 {
+                String::new()
+            } else {
+                format!(" model {REFERENCE_MODEL}")
+            }
+        )
+    };
+    let key = crate::io::sha256_hex(
+        format!(
+            "{}\n{:?} {:?} {:?}\n{}",
+            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, how,
+        )
+        .as_bytes(),
+    );
+    dir.join(format!("{}.f64", &key[..16]))
 }
 
 /// Marks the rows of one scene that are on its Pareto front (time and every error figure).

@@ -47,7 +47,7 @@
 //! again at each refinement of those reads (`relief_refine` 1, 2, 4, 8: `k` in the relief
 //! term, [`Features::relief_refine`]); where a pixel is finer than that and the relief casts
 //! shadows, both the quadrangles' ladder and those reads' are candidates, and what each
-//! costs ([`Candidate::cost`]: marched shadows on the quadrangles, the reads at their
+//! costs ([`relative_cost`]: marched shadows on the quadrangles, the reads at their
 //! refinement) decides between them. It models
 //! no more than the frame needs: shadows are cast only when the Sun is low enough over enough
 //! of the lit surface for the relief to hide it ([`Planner::shadowing`]), and the albedo map
@@ -1107,43 +1107,57 @@ struct Candidate {
 }
 
 impl Candidate {
-    /// What rendering the candidate costs, relative to one quadrangle per pixel whose
-    /// shadows are marched, per lit pixel ([`QUADRANGLE_COST_UNSHADOWED`],
-    /// [`RELIEF_READ_COST`]): `p` such quadrangles cost `p`; quadrangles whose shadows are not
-    /// marched (the horizon map, none, or under the relief's reads, where the quadrangles
-    /// integrate the smooth shape unshadowed) cost less; each pixel's reads of the relief add
-    /// their cost at their refinement. Both scale with the lit pixels, so the frame's size
-    /// leaves their ratio; the map's reads over each pixel, which every candidate of a frame
-    /// shares, are left out.
     fn cost(&self, shadows: SelfShadowing) -> f64 {
-        let quadrangle =
-            if self.map_filter != MapFilter::Relief && shadows == SelfShadowing::RayMarching {
-                1.0
-            } else {
-                QUADRANGLE_COST_UNSHADOWED
-            };
-        let reads = match self.map_filter {
-            MapFilter::Relief => RELIEF_REFINES
-                .iter()
-                .position(|&k| k >= self.relief_refine)
-                .map_or(RELIEF_READ_COST[RELIEF_READ_COST.len() - 1], |i| {
-                    RELIEF_READ_COST[i]
-                }),
-            _ => 0.0,
-        };
-        self.points_per_px * quadrangle + reads
+        relative_cost(
+            self.map_filter,
+            self.points_per_px,
+            self.relief_refine,
+            shadows,
+        )
     }
 }
 
+/// What rendering a frame at `points_per_px` quadrangles per pixel through `map_filter` (at
+/// `relief_refine` under [`MapFilter::Relief`]) with `shadows` costs, relative to one
+/// quadrangle per pixel whose shadows are marched, per lit pixel
+/// ([`QUADRANGLE_COST_UNSHADOWED`], [`RELIEF_READ_COST`]): `p` such quadrangles cost `p`;
+/// quadrangles whose shadows are not marched (the horizon map, none, or under the relief's
+/// reads, where the quadrangles integrate the smooth shape unshadowed) cost less; each
+/// pixel's reads of the relief add their cost at their refinement. Both scale with the lit
+/// pixels, so the frame's size leaves their ratio; the map's reads over each pixel, which
+/// every candidate of a frame shares, are left out.
+pub fn relative_cost(
+    map_filter: MapFilter,
+    points_per_px: f64,
+    relief_refine: u32,
+    shadows: SelfShadowing,
+) -> f64 {
+    let quadrangle = if map_filter != MapFilter::Relief && shadows == SelfShadowing::RayMarching {
+        1.0
+    } else {
+        QUADRANGLE_COST_UNSHADOWED
+    };
+    let reads = match map_filter {
+        MapFilter::Relief => RELIEF_REFINES
+            .iter()
+            .position(|&k| k >= relief_refine)
+            .map_or(RELIEF_READ_COST[RELIEF_READ_COST.len() - 1], |i| {
+                RELIEF_READ_COST[i]
+            }),
+        _ => 0.0,
+    };
+    points_per_px * quadrangle + reads
+}
+
 /// The cost of one quadrangle per pixel whose shadows are not marched, against one whose
-/// shadows are ([`Candidate::cost`]). The fixed rungs of the budget checks at 1024 x 1024
+/// shadows are ([`relative_cost`]). The fixed rungs of the budget checks at 1024 x 1024
 /// (the horizon map's shadows, against the planner's marched ones on the same frames, per
 /// quadrangle per pixel): NRHO rows 178 and 180 0.36 and 0.39, Artemis I rows 700 and 647
 /// 0.53 and 0.68; the relief's quadrangles, unshadowed, cost less than the horizon map's.
 const QUADRANGLE_COST_UNSHADOWED: f64 = 0.5;
 
 /// The cost of each pixel's reads of the relief at `relief_refine` 1, 2, 4 and 8
-/// ([`RELIEF_REFINES`]), in marched quadrangles per pixel ([`Candidate::cost`]). The relief
+/// ([`RELIEF_REFINES`]), in marched quadrangles per pixel ([`relative_cost`]). The relief
 /// rungs of the budget checks at 2 per pixel (their quadrangles at
 /// [`QUADRANGLE_COST_UNSHADOWED`] taken off) against the planner's marched quadrangles on
 /// the same frames (`docs/performance.md`, "Between the two ladders by cost"):
@@ -1711,7 +1725,7 @@ impl Planner {
             .collect()
     }
 
-    /// The cheapest rung ([`Candidate::cost`]) predicted to meet the budget for the frame of
+    /// The cheapest rung ([`relative_cost`]) predicted to meet the budget for the frame of
     /// `scene` from `pose`; for a ray-cast frame, its edges refined to the budget as it is
     /// cast.
     pub fn plan(&self, scene: &Scene, pose: &Pose) -> Plan {
@@ -1738,7 +1752,7 @@ impl Planner {
         // (`docs/performance.md`, "The relief over each pixel at 130 degrees"). Those reads
         // cost about a second a frame and more (a shadow ray a read), and the quadrangles'
         // marched shadows about as much per quadrangle per pixel, so both ladders are
-        // candidates and the cheapest that meets the budget is taken ([`Candidate::cost`]): at
+        // candidates and the cheapest that meets the budget is taken ([`relative_cost`]): at
         // the first perilune the quadrangles met it at 8 and 16 per pixel in 10.0 and 18.0 s,
         // where the reads at 2 per pixel, `k` 1, met it in 2.1 and 2.4 s
         // (`docs/performance.md`, "Between the two ladders by cost").

@@ -458,7 +458,7 @@ impl ReadScale {
     /// The class a frame at `relief_refine` showing `features` takes its factor from: at 1,
     /// whether it is mostly under shadows ([`SHADOWED_SHARE`]); `None` from 2 up.
     pub fn class(relief_refine: u32, features: &Features) -> Option<bool> {
-        (relief_refine <= 1).then(|| features.shadow_share >= SHADOWED_SHARE)
+        (relief_refine <= 1).then_some(features.shadow_share >= SHADOWED_SHARE)
     }
 }
 

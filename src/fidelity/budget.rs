@@ -1752,9 +1752,11 @@ impl Planner {
         // (`docs/performance.md`, "The relief over each pixel at 130 degrees"). Those reads
         // cost about a second a frame and more (a shadow ray a read), and the quadrangles'
         // marched shadows about as much per quadrangle per pixel, so both ladders are
-        // candidates and the cheapest that meets the budget is taken ([`relative_cost`]): at
-        // the first perilune the quadrangles met it at 8 and 16 per pixel in 10.0 and 18.0 s,
-        // where the reads at 2 per pixel, `k` 1, met it in 2.1 and 2.4 s
+        // candidates and the cheapest predicted to meet the budget is taken
+        // ([`relative_cost`]): beside the first perilune (NRHO row 180) the quadrangles at 16
+        // per pixel met it in 17.3 s (p99 6.95e-3), the reads at 1/16, `k` 2, which the
+        // planner now takes, in 15.6 s (1.41e-3); at `k` 1 they met it in 2.4 s, which the
+        // model, fitted at `k` 1 on frames at 86-130 deg alone, does not predict
         // (`docs/performance.md`, "Between the two ladders by cost").
         if map_filter == MapFilter::Pixel
             && outside.is_none()

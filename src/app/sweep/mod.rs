@@ -589,7 +589,29 @@ pub fn cached_reference(
     method: ReferenceMethod,
     dir: &Path,
 ) -> Result<CachedReference, AppError> {
-    let file = reference_file(text, scene, p, settings, method, dir);
+    let method = method.resolve(scene, p);
+    let how = if method == ReferenceMethod::Exact {
+        format!("exact model {EXACT_MODEL}")
+    } else {
+        format!(
+            "{:?}{}",
+            settings,
+            // Model 1 (no suffix) keeps the caches made before the model was numbered.
+            if REFERENCE_MODEL == 1 {
+                String::new()
+            } else {
+                format!(" model {REFERENCE_MODEL}")
+            }
+        )
+    };
+    let key = crate::io::sha256_hex(
+        format!(
+            "{}\n{:?} {:?} {:?}\n{}",
+            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, how,
+        )
+        .as_bytes(),
+    );
+    let file = dir.join(format!("{}.f64", &key[..16]));
     let n = {
         let i = &scene.camera.intrinsics;
         (i.width_px * i.height_px) as usize
@@ -619,41 +641,6 @@ pub fn cached_reference(
         .collect();
     std::fs::write(&file, bytes).map_err(|e| bad(&file, e))?;
     Ok(CachedReference::of(&head, r.frame.pl, false))
-}
-
-/// The file in `dir` that caches the reference of `scene` from `p` by `method`
-/// ([`cached_reference`]): named by the first 16 hex digits of its key.
-pub fn reference_file(
-    text: &str,
-    scene: &crate::scene::Scene,
-    p: &crate::scene::Pose,
-    settings: &ReferenceSettings,
-    method: ReferenceMethod,
-    dir: &Path,
-) -> PathBuf {
-    let method = method.resolve(scene, p);
-    let how = if method == ReferenceMethod::Exact {
-        format!("exact model {EXACT_MODEL}")
-    } else {
-        format!(
-            "{:?}{}",
-            settings,
-            // Model 1 (no suffix) keeps the caches made before the model was numbered.
-            if REFERENCE_MODEL == 1 {
-                String::new()
-            } else {
-                format!(" model {REFERENCE_MODEL}")
-            }
-        )
-    };
-    let key = crate::io::sha256_hex(
-        format!(
-            "{}\n{:?} {:?} {:?}\n{}",
-            text, p.camera_position_m, p.body_from_camera, p.sun_position_m, how,
-        )
-        .as_bytes(),
-    );
-    dir.join(format!("{}.f64", &key[..16]))
 }
 
 /// Marks the rows of one scene that are on its Pareto front (time and every error figure).

@@ -116,3 +116,93 @@ fn a_sweep_measures_every_setting_against_the_reference_and_charts_the_front() {
         assert_eq!(a[col("err_total")], b[col("err_total")]);
     }
 }
+
+/// A sweep's unpatched scene keys its reference by the scene file's own text, as
+/// `verify-budget` does: the references a budget check cached, copied into a sweep's folder,
+/// are reused for the same file, pose and reference settings, and give the same figures as a
+/// reference the sweep renders itself. A patched scene (whose text is the patched table's)
+/// renders its own.
+#[test]
+fn a_sweep_reuses_the_references_of_a_budget_check_on_the_same_file() {
+    use optistim::raycast::reference::{ReferenceMethod, ReferenceSettings};
+    let dir = TempDir::new("sweep-reuse");
+    let nrho = std::fs::read_to_string("../shared/trajectories/nrho_2orbits.csv").unwrap();
+    let trajectory = dir.join("one.csv");
+    std::fs::write(
+        &trajectory,
+        nrho.lines().take(2).collect::<Vec<_>>().join("\n") + "\n",
+    )
+    .unwrap();
+    let path = dir.join("scene.toml");
+    let spec = SceneSpec {
+        resolution: [24, 24],
+        pixel_m: 5.5e-6 * 40.0,
+        ..Default::default()
+    };
+    // A comment the re-serialised table of a patched scene would lose.
+    std::fs::write(&path, format!("# the scene\n{}", spec.toml())).unwrap();
+    let cfg = optistim::config::load(&path).unwrap();
+    let reference = ReferenceSettings {
+        tolerance: 1e-3,
+        max_depth: 4,
+        ..Default::default()
+    };
+    let check = dir.join("check");
+    optistim::app::verify_budget::run(
+        &cfg,
+        path.to_str().unwrap(),
+        &trajectory,
+        1,
+        Some(&[0]),
+        &reference,
+        ReferenceMethod::Cubature,
+        &check,
+        false,
+        |_| {},
+    )
+    .unwrap();
+    let sweep = |patch: &str| {
+        format!(
+            "repeats = 1\n[reference]\ntolerance = 1e-3\nmax_depth = 4\n\
+             [[scene]]\nname = \"row 0\"\nfile = \"scene.toml\"\ntrajectory = \"one.csv\"\npose = 0\n{patch}\
+             [[setting]]\nname = \"default\"\nrender = {{ preset = \"default\" }}\n"
+        )
+    };
+    let run = |name: &str, text: String, copied: bool| {
+        let file = dir.join(&format!("{name}.toml"));
+        std::fs::write(&file, text).unwrap();
+        let out = dir.join(name);
+        if copied {
+            std::fs::create_dir_all(out.join("references")).unwrap();
+            for f in std::fs::read_dir(check.join("references")).unwrap() {
+                let f = f.unwrap().path();
+                std::fs::copy(&f, out.join("references").join(f.file_name().unwrap())).unwrap();
+            }
+        }
+        let report = optistim::app::sweep::run(&file, &out, None, |_| {}).unwrap();
+        let mut csv = csv::Reader::from_path(out.join("sweep.csv")).unwrap();
+        let head = csv.headers().unwrap().clone();
+        // Every column but the times.
+        let figures: Vec<Vec<String>> = csv
+            .records()
+            .map(|r| {
+                let r = r.unwrap();
+                head.iter()
+                    .zip(r.iter())
+                    .filter(|(h, _)| !h.starts_with("time_ms"))
+                    .map(|(_, v)| v.to_string())
+                    .collect()
+            })
+            .collect();
+        (report.scenes[0].reference_reused, figures)
+    };
+    let (reused, copied) = run("copied", sweep(""), true);
+    assert!(reused, "the budget check's reference was not reused");
+    let (reused, fresh) = run("fresh", sweep(""), false);
+    assert!(!reused);
+    assert_eq!(copied, fresh);
+    // Patched (here with what the file already says), the scene is keyed by its table's text.
+    let patch = "[scene.patch.camera]\nresolution_px = [24, 24]\n";
+    let (reused, _) = run("patched", sweep(patch), true);
+    assert!(!reused);
+}

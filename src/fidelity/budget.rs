@@ -2352,7 +2352,7 @@ mod tests {
             .iter()
             .map(|&s| read(2.0, s, 0.03125, 0.25))
             .collect();
-        let rows: Vec<FitRow> = [sunny.clone(), shadowed.clone(), refined.clone()].concat();
+        let rows: Vec<FitRow> = [sunny.clone(), shadowed, refined.clone()].concat();
         let scales = fit_read_scales(&rows);
         let scale = |k: u32, shadowed: Option<bool>| {
             scales

@@ -989,3 +989,120 @@ fn the_model_names_the_frames_that_set_its_margins() {
     let back = optistim::fidelity::budget::ErrorModel::parse(&text, "test").unwrap();
     assert_eq!(back, model);
 }
+
+/// Artemis I row 852 (`config/nrho_textured_budget.toml`, 5,645 km, 161 deg: a lune of lit
+/// ridge tops along the limb, 0.1-0.3 px wide) as planned, against brute-force lattices of
+/// 256, 512 and 1024 midpoints a pixel side over every pixel within one of light (a first
+/// pass of 4 x 4 over the frame, then 16 x 16 within three pixels of light, find them). The
+/// reference's own estimate does not let `verify-budget` judge this frame; the brute force
+/// does, where it can:
+/// - its totals spread over 3.4e-3 (8.3396, 8.3112 and 8.3181e-22 sr m^2 at 256, 512 and
+///   1024 over 972 pixels): single pixels by the limb move by up to 6e-3 of the frame's
+///   light from one lattice to the next (lit ridge tops finer than a thousandth of a pixel,
+///   where the DEM's light per unit of the sphere's projected area grows as `1 / mu_shape`),
+///   so no lattice here knows the frame's total to the budget's 1e-4;
+/// - the plan (16 per pixel, `Area`, marched shadows) is 0.87 % to 1.21 % dark against each,
+///   0.87 % against the darkest: over the budget whatever the truth within that spread.
+///
+/// A diagnostic (4 minutes on 2 cores): `cargo test --release --test budget -- --ignored
+/// artemis_852`. `docs/performance.md`, "Artemis I 852 against a brute force".
+#[test]
+#[ignore]
+fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
+    use rayon::prelude::*;
+    let cfg = optistim::config::load(std::path::Path::new("config/nrho_textured_budget.toml"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let poses = optistim::trajectory::read(std::path::Path::new(
+        "../shared/trajectories/artemis1_flyby.csv",
+    ))
+    .unwrap();
+    let pose = poses[852].1;
+    let planner = cfg.planner().expect("a budgeted file");
+    let mut renderer = Renderer::new(0).unwrap();
+    let (plan, frame) = planner
+        .render(&cfg.scene, &pose, |s| renderer.render(&cfg.scene, &pose, s))
+        .unwrap();
+    assert_eq!(
+        (plan.points_per_pixel, plan.map_filter),
+        (16.0, MapFilter::Area)
+    );
+    let tracer = optistim::raycast::Tracer::new(&cfg.scene, &pose);
+    let (w, h) = (frame.width, frame.height);
+    let brute = |n: usize, px: &[usize]| -> Vec<f64> {
+        px.par_iter()
+            .map(|&p| {
+                let (i, j) = ((p % w) as f64, (p / w) as f64);
+                let mut sum = 0.0;
+                for b in 0..n {
+                    for a in 0..n {
+                        let (u, v) = ((a as f64 + 0.5) / n as f64, (b as f64 + 0.5) / n as f64);
+                        sum += tracer.cast(i + u, j + v).pl_per_px2;
+                    }
+                }
+                sum / (n * n) as f64
+            })
+            .collect()
+    };
+    // The pixels within `rad` of one of `px` whose value in `v` is above 0.
+    let near = |px: &[usize], v: &[f64], rad: i64| -> Vec<usize> {
+        let mut m = vec![false; w * h];
+        for (&p, _) in px.iter().zip(v).filter(|(_, x)| **x > 0.0) {
+            let (x, y) = ((p % w) as i64, (p / w) as i64);
+            for yy in (y - rad).max(0)..=(y + rad).min(h as i64 - 1) {
+                for xx in (x - rad).max(0)..=(x + rad).min(w as i64 - 1) {
+                    m[yy as usize * w + xx as usize] = true;
+                }
+            }
+        }
+        (0..w * h).filter(|&p| m[p]).collect()
+    };
+    let all: Vec<usize> = (0..w * h).collect();
+    let coarse = brute(4, &all);
+    let mut seen = coarse.clone();
+    seen.iter_mut()
+        .zip(&frame.pl)
+        .for_each(|(a, b)| *a += b.max(0.0));
+    let band = near(&all, &seen, 3);
+    let finer = brute(16, &band);
+    let mut lit = vec![0.0; w * h];
+    for (&p, &x) in band.iter().zip(&finer) {
+        lit[p] = x + frame.pl[p].max(0.0);
+    }
+    let px = near(&all, &lit, 1);
+    let plan_total: f64 = frame.pl.iter().sum();
+    let outside: f64 = frame.pl.iter().sum::<f64>() - px.iter().map(|&p| frame.pl[p]).sum::<f64>();
+    assert!(
+        outside.abs() < 1e-9 * plan_total,
+        "the plan's light outside: {outside:.3e}"
+    );
+    let totals: Vec<f64> = [256, 512, 1024]
+        .iter()
+        .map(|&n| brute(n, &px).iter().sum())
+        .collect();
+    let offs: Vec<f64> = totals.iter().map(|t| plan_total / t - 1.0).collect();
+    let most = totals.iter().copied().fold(f64::MIN, f64::max);
+    let least = totals.iter().copied().fold(f64::MAX, f64::min);
+    let scatter = most / least - 1.0;
+    let e = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:+.4e}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    eprintln!(
+        "{} pixels; brute totals {}, scatter {scatter:.2e}; the plan against each {}",
+        px.len(),
+        e(&totals),
+        e(&offs)
+    );
+    assert!(
+        scatter > 3e-4,
+        "the truth is known to the budget: {scatter:.2e}"
+    );
+    let darkest = plan_total / least - 1.0;
+    assert!(
+        darkest < -2.0 * scatter,
+        "the plan is within twice the brute forces' spread: {}",
+        e(&offs)
+    );
+}

@@ -438,12 +438,21 @@ fn window_brute_force(file: &str) -> std::sync::Arc<Vec<f64>> {
 fn brute_force(
     tracer: &optistim::raycast::Tracer,
     (w, h): (usize, usize),
+    lattice: (usize, usize),
+) -> Vec<f64> {
+    brute_force_at(tracer, w, &(0..w * h).collect::<Vec<_>>(), lattice)
+}
+
+/// [`brute_force`] over the pixels `px` (indices row by row in an image `w` wide) alone.
+fn brute_force_at(
+    tracer: &optistim::raycast::Tracer,
+    w: usize,
+    px: &[usize],
     (nu, nv): (usize, usize),
 ) -> Vec<f64> {
     use rayon::prelude::*;
-    (0..w * h)
-        .into_par_iter()
-        .map(|p| {
+    px.par_iter()
+        .map(|&p| {
             let (i, j) = ((p % w) as f64, (p / w) as f64);
             let mut sum = 0.0;
             for b in 0..nv {
@@ -1009,7 +1018,6 @@ fn the_model_names_the_frames_that_set_its_margins() {
 #[test]
 #[ignore]
 fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
-    use rayon::prelude::*;
     let cfg = optistim::config::load(std::path::Path::new("config/nrho_textured_budget.toml"))
         .unwrap_or_else(|e| panic!("{e}"));
     let poses = optistim::trajectory::read(std::path::Path::new(
@@ -1028,21 +1036,7 @@ fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
     );
     let tracer = optistim::raycast::Tracer::new(&cfg.scene, &pose);
     let (w, h) = (frame.width, frame.height);
-    let brute = |n: usize, px: &[usize]| -> Vec<f64> {
-        px.par_iter()
-            .map(|&p| {
-                let (i, j) = ((p % w) as f64, (p / w) as f64);
-                let mut sum = 0.0;
-                for b in 0..n {
-                    for a in 0..n {
-                        let (u, v) = ((a as f64 + 0.5) / n as f64, (b as f64 + 0.5) / n as f64);
-                        sum += tracer.cast(i + u, j + v).pl_per_px2;
-                    }
-                }
-                sum / (n * n) as f64
-            })
-            .collect()
-    };
+    let brute = |n: usize, px: &[usize]| brute_force_at(&tracer, w, px, (n, n));
     // The pixels within `rad` of one of `px` whose value in `v` is above 0.
     let near = |px: &[usize], v: &[f64], rad: i64| -> Vec<usize> {
         let mut m = vec![false; w * h];

@@ -1100,3 +1100,38 @@ fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
         e(&offs)
     );
 }
+
+/// A frame with nothing lit (the camera over the night side, 180 deg of phase) takes the
+/// cheapest rung and is predicted exact, since it has no lit pixel to err on; the model's
+/// figures there were an extrapolation (Artemis I rows 764-823 reported p99 2.0e-2 to 4.7e-2,
+/// over the budget they claimed to meet). Were its render to show light after all (a sliver
+/// the planner's probe missed), the frame no longer claims the budget and its prediction is
+/// unknown.
+#[test]
+fn a_frame_with_nothing_lit_is_predicted_exact_until_its_render_shows_light() {
+    let cfg = SceneSpec {
+        sun_m: [-AU, 0.0, 0.0],
+        ..spec("fidelity = \"budget\"")
+    }
+    .config();
+    let planner = cfg.planner().expect("a budgeted file");
+    let mut renderer = Renderer::new(0).unwrap();
+    let (plan, frame) = planner
+        .render(&cfg.scene, &cfg.pose, |s| {
+            renderer.render(&cfg.scene, &cfg.pose, s)
+        })
+        .unwrap();
+    assert_eq!(plan.features.lit_px, 0.0);
+    assert_eq!(frame.pl.iter().sum::<f64>(), 0.0);
+    assert_eq!(plan.points_per_pixel, LADDER[0]);
+    let p = plan.predicted;
+    assert_eq!((p.median, p.p99, p.total), (0.0, 0.0, 0.0));
+    assert!(plan.meets_budget);
+    let mut lit_after_all = plan.clone();
+    lit_after_all.observe(&optistim::render::FrameStats {
+        total_pl_image: 1e-20,
+        ..Default::default()
+    });
+    assert!(lit_after_all.predicted.p99.is_nan());
+    assert!(!lit_after_all.meets_budget);
+}

@@ -1037,10 +1037,10 @@ fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
     let tracer = optistim::raycast::Tracer::new(&cfg.scene, &pose);
     let (w, h) = (frame.width, frame.height);
     let brute = |n: usize, px: &[usize]| brute_force_at(&tracer, w, px, (n, n));
-    // The pixels within `rad` of one of `px` whose value in `v` is above 0.
-    let near = |px: &[usize], v: &[f64], rad: i64| -> Vec<usize> {
+    // The pixels within `rad` of one whose value in the image `v` is above 0.
+    let near = |v: &[f64], rad: i64| -> Vec<usize> {
         let mut m = vec![false; w * h];
-        for (&p, _) in px.iter().zip(v).filter(|(_, x)| **x > 0.0) {
+        for p in (0..w * h).filter(|&p| v[p] > 0.0) {
             let (x, y) = ((p % w) as i64, (p / w) as i64);
             for yy in (y - rad).max(0)..=(y + rad).min(h as i64 - 1) {
                 for xx in (x - rad).max(0)..=(x + rad).min(w as i64 - 1) {
@@ -1056,13 +1056,13 @@ fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
     seen.iter_mut()
         .zip(&frame.pl)
         .for_each(|(a, b)| *a += b.max(0.0));
-    let band = near(&all, &seen, 3);
+    let band = near(&seen, 3);
     let finer = brute(16, &band);
     let mut lit = vec![0.0; w * h];
     for (&p, &x) in band.iter().zip(&finer) {
         lit[p] = x + frame.pl[p].max(0.0);
     }
-    let px = near(&all, &lit, 1);
+    let px = near(&lit, 1);
     let plan_total: f64 = frame.pl.iter().sum();
     let outside: f64 = frame.pl.iter().sum::<f64>() - px.iter().map(|&p| frame.pl[p]).sum::<f64>();
     assert!(

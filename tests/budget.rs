@@ -1064,7 +1064,7 @@ fn artemis_852_is_dark_by_more_than_its_truth_is_uncertain() {
     }
     let px = near(&lit, 1);
     let plan_total: f64 = frame.pl.iter().sum();
-    let outside: f64 = frame.pl.iter().sum::<f64>() - px.iter().map(|&p| frame.pl[p]).sum::<f64>();
+    let outside = plan_total - px.iter().map(|&p| frame.pl[p]).sum::<f64>();
     assert!(
         outside.abs() < 1e-9 * plan_total,
         "the plan's light outside: {outside:.3e}"

@@ -1806,14 +1806,9 @@ impl Planner {
         // exact (the model's figures there are an extrapolation to no lit pixel at all:
         // Artemis I rows 764-823 reported p99 2.0e-2 to 4.7e-2 with nothing to err on).
         let (chosen, meets) = if features.lit_px == 0.0 {
-            let exact = Predicted {
-                median: 0.0,
-                p99: 0.0,
-                total: 0.0,
-            };
             (
                 Candidate {
-                    predicted: exact,
+                    predicted: Predicted::default(),
                     ..predicted[0]
                 },
                 true,

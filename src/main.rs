@@ -120,6 +120,19 @@ enum Command {
         #[arg(long)]
         fit: Option<PathBuf>,
     },
+    /// What the fidelity planner chooses for every pose of a stream and the error it
+    /// predicts, without rendering (milliseconds a pose): writes one CSV row per pose and
+    /// prints the share predicted to meet the budget and the runs of rows that are not.
+    Plan {
+        /// Pose stream (CSV, as `bench`).
+        trajectory: PathBuf,
+        /// Scene file (its [render.budget], or the default budget).
+        #[arg(long)]
+        scene: PathBuf,
+        /// The per-pose CSV.
+        #[arg(long, default_value = "out/plan.csv")]
+        out: PathBuf,
+    },
     /// The fidelity planner checked over a pose stream: N frames spread over it, each as
     /// `fidelity = "budget"` plans it and at every fixed rung of its ladder, against the
     /// converged reference; writes DIR/frames.csv and prints the summary.
@@ -533,6 +546,15 @@ fn run() -> anyhow::Result<()> {
                 keep_frames,
                 |line| eprintln!("{line}"),
             )?;
+            out!("{}", serde_json::to_string(&report)?);
+        }
+        Command::Plan {
+            trajectory,
+            scene,
+            out,
+        } => {
+            let cfg = config::load(&scene)?;
+            let report = app::plan::run(&cfg, &scene.display().to_string(), &trajectory, &out)?;
             out!("{}", serde_json::to_string(&report)?);
         }
         Command::FitModel { csv, out } => {

@@ -8,6 +8,7 @@ pub mod compare;
 pub mod exposure;
 pub mod invert;
 pub mod irradiance;
+pub mod plan;
 pub mod products;
 pub mod render;
 pub mod render_trajectory;
@@ -63,6 +64,8 @@ pub enum AppError {
     Sweep(String),
     #[error("verify-budget: {0}")]
     VerifyBudget(String),
+    #[error("plan: {0}")]
+    Plan(String),
     #[error("replay: {0}")]
     Replay(String),
     #[error(transparent)]

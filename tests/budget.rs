@@ -1070,7 +1070,7 @@ fn artemis_852_is_dark_against_lattices_warped_at_the_limb() {
     );
     let warped: Vec<Vec<f64>> = [256, 512]
         .iter()
-        .map(|&n| limb_warped_at(&tracer, w, &px, n))
+        .map(|&n| limb_warped_at(&tracer, pose.camera_position_m, w, &px, n))
         .collect();
     let totals: Vec<f64> = warped.iter().map(|v| v.iter().sum()).collect();
     let offs: Vec<f64> = totals.iter().map(|t| plan_total / t - 1.0).collect();
@@ -1111,85 +1111,199 @@ fn artemis_852_is_dark_against_lattices_warped_at_the_limb() {
     );
 }
 
+/// A frame's reference (`verify-budget`'s `references/KEY.f64`) over its lit pixels that the
+/// limb cuts, against lattices warped at the limb ([`limb_warped_at`]) of `NS` a side; with
+/// `PLAN` (the frame kept by `verify-budget --keep-frames`), the frame against the reference
+/// and against the reference with those pixels replaced by the warped lattice's. The frame
+/// is row `ROW` of `../shared/trajectories/STREAM.csv` with `config/nrho_textured_budget.toml`:
+///
+/// ```text
+/// REF=out/v/references/KEY.f64 PLAN=out/v/frames/882.f64 STREAM=artemis1_flyby ROW=882 \
+///   NS="64 128" cargo test --release --test budget -- --ignored limb_pixels --nocapture
+/// ```
+///
+/// `docs/performance.md`, "Artemis I 852 against lattices warped at the limb".
+#[test]
+#[ignore]
+fn limb_pixels_against_lattices_warped_at_the_limb() {
+    let var = |k: &str| std::env::var(k).unwrap_or_else(|_| panic!("{k} is not set"));
+    let cfg = optistim::config::load(std::path::Path::new("config/nrho_textured_budget.toml"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let stream = format!("../shared/trajectories/{}.csv", var("STREAM"));
+    let row: usize = var("ROW").parse().unwrap();
+    let pose = optistim::trajectory::read(std::path::Path::new(&stream)).unwrap()[row].1;
+    let tracer = optistim::raycast::Tracer::new(&cfg.scene, &pose);
+    let intr = &cfg.scene.camera.intrinsics;
+    let (w, h) = (intr.width_px as usize, intr.height_px as usize);
+    let read = |path: &str, head: usize| -> Vec<f64> {
+        let b = std::fs::read(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+        let v: Vec<f64> = b
+            .chunks_exact(8)
+            .skip(head)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        assert_eq!(v.len(), w * h, "{path}");
+        v
+    };
+    let reference = read(&var("REF"), 5);
+    let total: f64 = reference.iter().sum();
+    let mut positive: Vec<f64> = reference.iter().copied().filter(|&x| x > 0.0).collect();
+    positive.sort_by(f64::total_cmp);
+    let floor = optistim::fidelity::metrics::LIT_FRACTION
+        * positive[(0.99 * (positive.len() - 1) as f64) as usize];
+    let on = |u: f64, v: f64| tracer.shape_at(u, v).is_some();
+    let limb_px: Vec<usize> = (0..w * h)
+        .filter(|&p| {
+            let (i, j) = ((p % w) as f64, (p / w) as f64);
+            let c = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)].map(|(a, b)| on(i + a, j + b));
+            reference[p] >= floor && c.iter().any(|&x| x != c[0])
+        })
+        .collect();
+    let lit = reference.iter().filter(|&&x| x >= floor).count();
+    eprintln!(
+        "{lit} lit pixels, {} of them cut by the limb",
+        limb_px.len()
+    );
+    let plan = std::env::var("PLAN").ok().map(|p| read(&p, 0));
+    let ns = std::env::var("NS").unwrap_or_else(|_| "64 128".into());
+    for n in ns.split(' ').map(|x| x.parse::<usize>().unwrap()) {
+        let warped = limb_warped_at(&tracer, pose.camera_position_m, w, &limb_px, n);
+        let mut off: Vec<f64> = warped
+            .iter()
+            .zip(&limb_px)
+            .map(|(x, &p)| (reference[p] / x - 1.0).abs())
+            .collect();
+        off.sort_by(f64::total_cmp);
+        let apart: f64 =
+            limb_px.iter().map(|&p| reference[p]).sum::<f64>() - warped.iter().sum::<f64>();
+        eprintln!(
+            "{n} a side: the reference against it over those pixels: median {:.2e}, {} over 3e-2, \
+             their sum {:+.2e} of the frame",
+            off[off.len() / 2],
+            off.iter().filter(|&&x| x > 3e-2).count(),
+            apart / total
+        );
+        if let Some(plan) = &plan {
+            let mut mended = reference.clone();
+            limb_px
+                .iter()
+                .zip(&warped)
+                .for_each(|(&p, &x)| mended[p] = x);
+            let sum = |v: &[f64]| v.iter().sum::<f64>();
+            for (name, r) in [
+                ("the reference", &reference),
+                ("the mended reference", &mended),
+            ] {
+                let e = frame_error(plan, r, w, h);
+                eprintln!(
+                    "   the frame against {name}: median {:.2e}, p99 {:.2e}, total {:+.2e}",
+                    e.median,
+                    e.p99,
+                    sum(plan) / sum(r) - 1.0
+                );
+            }
+        }
+    }
+}
+
 /// Each of the pixels `px` (indices row by row in an image `w` wide) as the mean of the
-/// tracer's light over `n` rows of `n` lines of sight, read evenly not in the image but in
-/// the square root of the distance to the limb. The light per unit of the image of a DEM
-/// that tilts the normals, `f_r mu0 mu / mu_shape` (Eq. 37), grows as the inverse square root
-/// of the distance to the limb, `|u - u_limb|`: a lattice over the image integrates it right
-/// on average, with a variance that grows without bound. Along each row the limb's crossing
-/// nearest to the pixel (within 3 px) is found by bisection on the shape; on its side of the
-/// shape `u = u_limb +- s^2`, read at midpoints of even steps of `s` and weighed by
-/// `du = 2 s ds`, whose light per unit of `s` is bounded. A row with no crossing near is
-/// read evenly. Made for a limb that crosses the rows (Artemis I 852's runs down the frame's
-/// left side), not one along them.
+/// tracer's light over `n` lines of `n` lines of sight across the limb, read evenly not in the
+/// image but in the square root of the distance to the limb. The light per unit of the image
+/// of a DEM that tilts the normals, `f_r mu0 mu / mu_shape` (Eq. 37), grows as the inverse
+/// square root of the distance to the limb: a lattice over the image integrates it right on
+/// average, with a variance that grows without bound. Across the pixel (along the image axis
+/// on which `mu_shape^2`, read at its corners, changes most; the camera at `camera_m` in the
+/// body frame), each line's crossing of the limb nearest to the pixel (within 3 px) is found
+/// by bisection on the shape; on the shape's side of it `x = x_limb +- s^2`, read at midpoints
+/// of even steps of `s` and weighed by `dx = 2 s ds`, whose light per unit of `s` is bounded.
+/// A line with no crossing near is read evenly.
 fn limb_warped_at(
     tracer: &optistim::raycast::Tracer,
+    camera_m: glam::DVec3,
     w: usize,
     px: &[usize],
     n: usize,
 ) -> Vec<f64> {
     use rayon::prelude::*;
-    let on = |u: f64, v: f64| tracer.shape_at(u, v).is_some();
-    // The limb's crossing of row `v` nearest to `[a, a + 1]`, among those within 3 px.
-    let limb = |a: f64, v: f64| -> Option<f64> {
-        const STEPS: usize = 56;
-        let (lo, hi) = (a - 3.0, a + 4.0);
-        let dx = (hi - lo) / STEPS as f64;
-        let off = |c: f64| (a - c).max(c - a - 1.0).max(0.0);
-        let mut best: Option<f64> = None;
-        let mut prev = on(lo, v);
-        for k in 1..=STEPS {
-            let x = lo + dx * k as f64;
-            let cur = on(x, v);
-            if cur != prev {
-                let (mut l, mut r) = (x - dx, x);
-                for _ in 0..60 {
-                    let m = 0.5 * (l + r);
-                    if on(m, v) == prev { l = m } else { r = m }
-                }
-                let c = 0.5 * (l + r);
-                if best.is_none_or(|b| off(c) < off(b)) {
-                    best = Some(c);
-                }
-            }
-            prev = cur;
-        }
-        best
+    let q = |u: f64, v: f64| {
+        tracer.shape_at(u, v).map_or(0.0, |(p, normal)| {
+            let mu = normal.dot((camera_m - p).normalize());
+            mu * mu
+        })
     };
     px.par_iter()
         .map(|&p| {
             let (i, j) = ((p % w) as f64, (p / w) as f64);
+            let [q00, q10, q01, q11] = [q(i, j), q(i + 1.0, j), q(i, j + 1.0), q(i + 1.0, j + 1.0)];
+            let across_u = ((q10 - q00) + (q11 - q01)).abs() >= ((q01 - q00) + (q11 - q10)).abs();
+            // `x` across the limb, `y` along it.
+            let at = |x: f64, y: f64| if across_u { (x, y) } else { (y, x) };
+            let (x0, y0) = at(i, j);
+            let on = |x: f64, y: f64| {
+                let (u, v) = at(x, y);
+                tracer.shape_at(u, v).is_some()
+            };
+            let light = |x: f64, y: f64| {
+                let (u, v) = at(x, y);
+                tracer.cast(u, v).pl_per_px2
+            };
+            // The limb's crossing of line `y` nearest to `[x0, x0 + 1]`, among those within 3 px.
+            let limb = |y: f64| -> Option<f64> {
+                const STEPS: usize = 56;
+                let (lo, hi) = (x0 - 3.0, x0 + 4.0);
+                let dx = (hi - lo) / STEPS as f64;
+                let off = |c: f64| (x0 - c).max(c - x0 - 1.0).max(0.0);
+                let mut best: Option<f64> = None;
+                let mut prev = on(lo, y);
+                for k in 1..=STEPS {
+                    let x = lo + dx * k as f64;
+                    let cur = on(x, y);
+                    if cur != prev {
+                        let (mut l, mut r) = (x - dx, x);
+                        for _ in 0..60 {
+                            let m = 0.5 * (l + r);
+                            if on(m, y) == prev { l = m } else { r = m }
+                        }
+                        let c = 0.5 * (l + r);
+                        if best.is_none_or(|b| off(c) < off(b)) {
+                            best = Some(c);
+                        }
+                    }
+                    prev = cur;
+                }
+                best
+            };
             let step = 1.0 / n as f64;
-            let row = |v: f64| -> f64 {
-                let Some(ul) = limb(i, v) else {
+            let line = |y: f64| -> f64 {
+                let Some(xl) = limb(y) else {
                     return (0..n)
-                        .map(|a| tracer.cast(i + (a as f64 + 0.5) * step, v).pl_per_px2)
+                        .map(|a| light(x0 + (a as f64 + 0.5) * step, y))
                         .sum::<f64>()
                         * step;
                 };
                 // The shape's side of the crossing, within the pixel.
-                let right = on(ul + 1e-6, v);
-                let (a0, a1) = if right {
-                    (i.max(ul), i + 1.0)
+                let ahead = on(xl + 1e-6, y);
+                let (a0, a1) = if ahead {
+                    (x0.max(xl), x0 + 1.0)
                 } else {
-                    (i, (i + 1.0).min(ul))
+                    (x0, (x0 + 1.0).min(xl))
                 };
                 if a1 <= a0 {
                     return 0.0;
                 }
-                let (s0, s1) = ((a0 - ul).abs().sqrt(), (a1 - ul).abs().sqrt());
+                let (s0, s1) = ((a0 - xl).abs().sqrt(), (a1 - xl).abs().sqrt());
                 let (s0, s1) = (s0.min(s1), s0.max(s1));
                 let ds = (s1 - s0) * step;
                 (0..n)
                     .map(|a| {
                         let s = s0 + (a as f64 + 0.5) * ds;
-                        let u = if right { ul + s * s } else { ul - s * s };
-                        tracer.cast(u, v).pl_per_px2 * 2.0 * s * ds
+                        let x = if ahead { xl + s * s } else { xl - s * s };
+                        light(x, y) * 2.0 * s * ds
                     })
                     .sum()
             };
             (0..n)
-                .map(|b| row(j + (b as f64 + 0.5) * step))
+                .map(|b| line(y0 + (b as f64 + 0.5) * step))
                 .sum::<f64>()
                 * step
         })

@@ -3,7 +3,7 @@
 //! stretches of the stream where it does not expect to meet the budget.
 //!
 //! Planning alone takes milliseconds a frame (the probe of what the frame shows and the error
-//! model, [`crate::fidelity::budget`]: the Artemis I flyby's 1,441 poses in 13 s on 2 cores),
+//! model, [`crate::fidelity::budget`]: the Artemis I flyby's 1,441 poses in 7 s on 2 cores),
 //! so a bench sees before a run which frames will not claim the budget, and by how much each
 //! figure is predicted over it. A frame is counted once, at the plan it starts from: a frame
 //! whose relief reads estimate their own error is judged again once it is rendered
@@ -11,7 +11,6 @@
 //! measured error is `verify-budget`'s.
 
 use super::AppError;
-use super::verify_budget::planner_of;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -68,7 +67,9 @@ pub fn run(
 ) -> Result<PlanReport, AppError> {
     let t0 = Instant::now();
     let poses = crate::trajectory::read(trajectory)?;
-    let planner = planner_of(config)?;
+    let planner = config
+        .planner_or_default()
+        .map_err(|e| AppError::Plan(e.to_string()))?;
     let budget = planner.budget();
     let frames: Vec<PlannedFrame> = poses
         .iter()

@@ -310,24 +310,6 @@ fn keep_frame(dir: &Path, row: usize, pl: &[f64]) -> std::io::Result<()> {
     std::fs::write(dir.join(format!("{row}.f64")), bytes)
 }
 
-/// The scene file's planner, or, for a file with no `fidelity = "budget"`, one with the
-/// default budget.
-pub(crate) fn planner_of(config: &Config) -> Result<Planner, AppError> {
-    match config.planner() {
-        Some(p) => Ok(p),
-        None => {
-            let model = crate::fidelity::budget::ErrorModel::shipped()
-                .map_err(|e| AppError::VerifyBudget(e.to_string()))?;
-            Ok(Planner::new(
-                &config.scene,
-                &config.settings,
-                Budget::default(),
-                model,
-            ))
-        }
-    }
-}
-
 /// Runs the check on `rows` of the stream, or on `frames` frames spread evenly over it;
 /// `progress` hears one line per frame. Frames already measured in `out/frames.csv` on the
 /// same inputs are read, not measured again (see the module's documentation).
@@ -349,7 +331,9 @@ pub fn run(
     };
     std::fs::create_dir_all(out).map_err(|e| bad(out, &e))?;
     let poses = crate::trajectory::read(trajectory)?;
-    let planner = planner_of(config)?;
+    let planner = config
+        .planner_or_default()
+        .map_err(|e| AppError::VerifyBudget(e.to_string()))?;
     let budget = planner.budget();
     let selected: Vec<usize> = match rows {
         Some(rows) => {

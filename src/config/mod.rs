@@ -89,6 +89,24 @@ impl Config {
             )
         })
     }
+
+    /// [`Config::planner`], or, for a file without `fidelity = "budget"`, a planner with the
+    /// default budget and the shipped error model: what a check or a plan of the file's
+    /// frames would hold them to.
+    pub fn planner_or_default(
+        &self,
+    ) -> Result<crate::fidelity::budget::Planner, crate::fidelity::budget::ModelError> {
+        use crate::fidelity::budget::{Budget, ErrorModel, Planner};
+        match self.planner() {
+            Some(p) => Ok(p),
+            None => Ok(Planner::new(
+                &self.scene,
+                &self.settings,
+                Budget::default(),
+                ErrorModel::shipped()?,
+            )),
+        }
+    }
 }
 
 /// A setting as the scene file spells it (`"ray_marching"`, `"pixel"`, `"lockstep"`): the

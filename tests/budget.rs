@@ -1122,6 +1122,7 @@ fn artemis_852_is_dark_against_lattices_warped_at_the_limb() {
 ///   NS="64 128" cargo test --release --test budget -- --ignored limb_pixels --nocapture
 /// ```
 ///
+/// A measurement, not a check: it asserts only that its inputs are the frame's size.
 /// `docs/performance.md`, "Artemis I 852 against lattices warped at the limb".
 #[test]
 #[ignore]
@@ -1164,6 +1165,9 @@ fn limb_pixels_against_lattices_warped_at_the_limb() {
         "{lit} lit pixels, {} of them cut by the limb",
         limb_px.len()
     );
+    if limb_px.is_empty() {
+        return;
+    }
     let plan = std::env::var("PLAN").ok().map(|p| read(&p, 0));
     let ns = std::env::var("NS").unwrap_or_else(|_| "64 128".into());
     for n in ns.split(' ').map(|x| x.parse::<usize>().unwrap()) {

@@ -1148,10 +1148,7 @@ fn limb_pixels_against_lattices_warped_at_the_limb() {
     };
     let reference = read(&var("REF"), 5);
     let total: f64 = reference.iter().sum();
-    let mut positive: Vec<f64> = reference.iter().copied().filter(|&x| x > 0.0).collect();
-    positive.sort_by(f64::total_cmp);
-    let floor = optistim::fidelity::metrics::LIT_FRACTION
-        * positive[(0.99 * (positive.len() - 1) as f64) as usize];
+    let floor = optistim::fidelity::metrics::lit_floor(&reference).expect("a lit reference");
     let on = |u: f64, v: f64| tracer.shape_at(u, v).is_some();
     let limb_px: Vec<usize> = (0..w * h)
         .filter(|&p| {

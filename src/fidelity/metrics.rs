@@ -35,6 +35,13 @@ impl FrameError {
     }
 }
 
+/// The value from which a pixel of `reference` counts as lit: [`LIT_FRACTION`] of the 99th
+/// percentile of its positive pixels (`None` where none is positive).
+pub fn lit_floor(reference: &[f64]) -> Option<f64> {
+    let mut positive: Vec<f64> = reference.iter().copied().filter(|&r| r > 0.0).collect();
+    (!positive.is_empty()).then(|| LIT_FRACTION * crate::stats::quantiles(&mut positive, [0.99])[0])
+}
+
 /// The error of `image` against `reference` (same size, row-major, any linear unit).
 pub fn frame_error(image: &[f64], reference: &[f64], width: usize, height: usize) -> FrameError {
     assert_eq!(image.len(), reference.len());
@@ -47,10 +54,8 @@ pub fn frame_error(image: &[f64], reference: &[f64], width: usize, height: usize
     } else {
         f64::INFINITY
     };
-    let mut positive: Vec<f64> = reference.iter().copied().filter(|&r| r > 0.0).collect();
     let mut rel = Vec::new();
-    if !positive.is_empty() {
-        let lit = LIT_FRACTION * crate::stats::quantiles(&mut positive, [0.99])[0];
+    if let Some(lit) = lit_floor(reference) {
         rel = image
             .iter()
             .zip(reference)

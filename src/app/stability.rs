@@ -30,8 +30,9 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 /// The suite's reference: converged well below the budget at 128 x 128 (cells down to
-/// 1/256 px, at most 2048 a pixel, and a lattice of 32 x 32 a pixel near the edges, half the
-/// default's), so that a DEM cliff's grazing rays stay affordable.
+/// 1/256 px, at most 2048 a pixel, a lattice of 32 x 32 a pixel near the edges and warped
+/// lattices of at most 128 a side at a limb, half the default's), so that a DEM cliff's
+/// grazing rays stay affordable.
 const REFERENCE: ReferenceSettings = ReferenceSettings {
     tolerance: 1e-6,
     max_depth: 8,
@@ -40,6 +41,7 @@ const REFERENCE: ReferenceSettings = ReferenceSettings {
     corner_depth: 7,
     near_depth: 3,
     lattice_per_px: 32,
+    limb_lattice_max: 128,
     max_cells_per_px: 2048,
     threads: 0,
 };

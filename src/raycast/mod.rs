@@ -25,6 +25,7 @@ mod bins;
 pub mod estimate;
 pub mod exact;
 pub mod facet_light;
+pub mod limb;
 pub mod raster;
 pub mod reference;
 pub mod sampled;

@@ -530,8 +530,11 @@ fn reference_of(
 /// 8: a pixel around which the Sun alone keeps some first rays dark and the camera alone
 /// others is near an edge (`Tracer::dark_because`): the slivers lit between the two were lost
 /// from whole pixels. 9: so is a pixel whose first rays or a neighbour's are lit where
-/// another pixel's around it are dark: an edge between two pixels' rays was lost.
-pub(crate) const REFERENCE_MODEL: u32 = 9;
+/// another pixel's around it are dark: an edge between two pixels' rays was lost. 10: a pixel
+/// the limb cuts where a DEM tilts the normals is read by lattices warped at the limb
+/// (`ReferenceSettings::limb_lattice_max`), where the light grows as the inverse square root
+/// of the distance to it.
+pub(crate) const REFERENCE_MODEL: u32 = 10;
 
 /// [`REFERENCE_MODEL`] for the exact mesh reference ([`crate::raycast::exact`]).
 const EXACT_MODEL: u32 = 1;

@@ -17,8 +17,8 @@
 //! crescent a pixel or two thick) cannot be judged: it is counted apart, and the shares of
 //! verifiable frames and the fixed rung leave it out; the summary counts those of them whose
 //! total is over the budget by more than the reference's own estimate, which are over
-//! whatever the reference's error ([`over_beyond_the_reference`]). Each figure is also judged on its own
-//! where the reference is converged for it: a reference at a tolerance of 1e-3 per pixel (a
+//! whatever the reference's error ([`over_beyond_the_reference`]). Each figure is also
+//! judged on its own where the reference is converged for it: a reference at a tolerance of 1e-3 per pixel (a
 //! mesh's takes tens of seconds at that) estimates its own total only to about 1e-3, above
 //! the budget's 1e-4, but its 99th percentile well within 3e-2.
 //!

@@ -52,10 +52,11 @@
 //! limb keeps an error of the order of the square root of its side whatever the rules say.
 //! It is read by lattices warped at the limb ([`super::limb`]) of 32, 64, ... lines a side,
 //! doubled until two agree within the pixel's tolerance or `limb_lattice_max` is reached: the
-//! last is kept and their difference is its error estimate (bound and signed). Against warped
-//! lattices of 64 and 128 a side, the cells (model 9, 6 halvings) had misread the limb pixels
-//! of Artemis I's crescents by 1-2e-4 of the frame's light (882: -1.2e-4, 866: +7.8e-5),
-//! beyond their own estimates (`docs/performance.md`).
+//! last is kept and their difference is its error estimate (bound and signed). Cells (model
+//! 9, 6 halvings) had left Artemis I row 852's reference 6.1e-4 of its light off warped
+//! lattices of 512 a side, where their signed estimate said 4.6e-5 (model 10: 1.8e-4 off, its
+//! estimate 1.35e-4), and row 882's limb pixels 7-9e-5 of the frame's light off those of 64
+//! and 128 (`docs/performance.md`, "The reference reads the limb warped").
 //!
 //! Cells whose lines of sight all miss the body's bounding volume are empty without a ray.
 //! What remains is known: below `corner_depth`, a cell whose rays and corners are all lit

@@ -18,9 +18,9 @@
 //! verifiable frames and the fixed rung leave it out; the summary counts those of them whose
 //! total is over the budget by more than the reference's own estimate, which are over
 //! whatever the reference's error ([`over_beyond_the_reference`]). Each figure is also
-//! judged on its own where the reference is converged for it: a reference at a tolerance of 1e-3 per pixel (a
-//! mesh's takes tens of seconds at that) estimates its own total only to about 1e-3, above
-//! the budget's 1e-4, but its 99th percentile well within 3e-2.
+//! judged on its own where the reference is converged for it: a reference at a tolerance of
+//! 1e-3 per pixel (a mesh's takes tens of seconds at that) estimates its own total only to
+//! about 1e-3, above the budget's 1e-4, but its 99th percentile well within 3e-2.
 //!
 //! A check over a stream takes hours where each reference takes minutes (a 1024 x 1024 DEM
 //! frame: 2.5 to 7 min on 2 cores), so nothing of it is lost to an interruption:

@@ -411,4 +411,100 @@ mod tests {
         assert!(tracer_only <= 5, "{tracer_only}");
         assert!(marcher_only <= 2, "{marcher_only}");
     }
+
+    /// Sun rays from lit points beside the limb of Artemis I row 861 (159 deg of phase,
+    /// `config/nrho_textured_budget.toml`), rising at 0.1 to 2 deg over the LOLA DEM, that
+    /// pass a few centimetres below a ridge one to thirteen kilometres on. Between two of the
+    /// marcher's points the ray lies up to `s^2 / (8 r)` below its chord (26 cm over a
+    /// quarter texel of the 4 px/deg DEM); the marcher tested it only where the chord came
+    /// lowest, and lit those points: 137 of 416,457 near that limb (2.2e-4 of their light,
+    /// all one way), the frame +1.7e-4 too bright in total. It now halves such an interval
+    /// where the ray is not below the ground there ([`Relief::occluded`]). A march of 2 m
+    /// steps finds each of them under the ground, as the tracer does.
+    #[test]
+    fn the_marcher_finds_rays_a_few_centimetres_below_a_ridge() {
+        let dem = Map::load(
+            std::path::Path::new("../shared/data/moon/ldem_4.tif"),
+            &Encoding {
+                scale: 1000.0,
+                ..Encoding::default()
+            },
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let radius = 1_737_400.0;
+        let relief = Relief::new(dem, radius, false).unwrap();
+        let tracer = Terrain::new(&relief);
+        // (longitude, latitude) [deg] of the point and the unit direction to the Sun (B).
+        let rays: [(f64, f64, f64, f64, f64); 7] = [
+            (
+                -65.41375962966924,
+                11.040387231219073,
+                -0.9051554404263973,
+                -0.42501716943361917,
+                -0.007350806291077111,
+            ),
+            (
+                -65.21985189597008,
+                10.97106346519989,
+                -0.9051554418142447,
+                -0.42501716672489404,
+                -0.007350792011945166,
+            ),
+            (
+                -65.5010774798416,
+                10.956021959842943,
+                -0.9051554418656546,
+                -0.4250171666607026,
+                -0.007350789393005991,
+            ),
+            (
+                -65.24226138373749,
+                8.399921749026468,
+                -0.9051554830687008,
+                -0.42501708787682874,
+                -0.007350270972351305,
+            ),
+            (
+                -65.0310152933832,
+                7.304261298463067,
+                -0.9051554977292937,
+                -0.4250170605190975,
+                -0.007350047492400347,
+            ),
+            (
+                -65.63184148622683,
+                -0.5983116695099538,
+                -0.9051555484240555,
+                -0.4250169805652761,
+                -0.0073484276088688245,
+            ),
+            (
+                -65.15620990852776,
+                -1.4758133906672337,
+                -0.9051555486372301,
+                -0.42501698324261716,
+                -0.0073482464969550736,
+            ),
+        ];
+        for (lon, lat, x, y, z) in rays {
+            let up = crate::geometry::unit_from_lon_lat(lon.to_radians(), lat.to_radians());
+            let toward = DVec3::new(x, y, z);
+            let h0 = relief
+                .heights_m
+                .sample(lon.to_radians(), lat.to_radians())
+                .unwrap();
+            let start = up * (radius + h0 + crate::body::SHADOW_RAY_LIFT * radius);
+            let below = (1..25_000).any(|k| {
+                let q = start + toward * (2.0 * k as f64);
+                let (l, b) = crate::geometry::lon_lat_unit(q.normalize());
+                q.length() < radius + relief.heights_m.sample(l, b).unwrap()
+            });
+            assert!(below, "({lon}, {lat}): the 2 m march finds no ground");
+            assert!(
+                tracer.shadowed(up, toward, false),
+                "({lon}, {lat}): the tracer"
+            );
+            assert!(relief.occluded(up, toward), "({lon}, {lat}): the marcher");
+        }
+    }
 }

@@ -392,11 +392,9 @@ mod tests {
         assert!(marcher_only <= 2, "{marcher_only}");
     }
 
-    /// The same on the Moon's LOLA DEM (`../shared`, 4 px/deg): with the steps alone the
-    /// marcher lit 133 of the 18,000 points the tracer shadows (0.7 %); now none. The
-    /// tracer's steps alone lit 18 that the marcher shadows; with its creases tested, none.
-    #[test]
-    fn the_marcher_and_the_tracer_agree_on_the_lunar_dem() {
+    /// The Moon's LOLA DEM (`../shared`, 4 px/deg) over a sphere of `radius_m`, tilting the
+    /// normals only.
+    fn lunar_relief(radius_m: f64) -> Relief {
         let dem = Map::load(
             std::path::Path::new("../shared/data/moon/ldem_4.tif"),
             &Encoding {
@@ -405,7 +403,15 @@ mod tests {
             },
         )
         .unwrap_or_else(|e| panic!("{e}"));
-        let relief = Relief::new(dem, 1_737_400.0, false).unwrap();
+        Relief::new(dem, radius_m, false).unwrap()
+    }
+
+    /// The same on the Moon's LOLA DEM (`../shared`, 4 px/deg): with the steps alone the
+    /// marcher lit 133 of the 18,000 points the tracer shadows (0.7 %); now none. The
+    /// tracer's steps alone lit 18 that the marcher shadows; with its creases tested, none.
+    #[test]
+    fn the_marcher_and_the_tracer_agree_on_the_lunar_dem() {
+        let relief = lunar_relief(1_737_400.0);
         let (shadowed, marcher_only, tracer_only) = marcher_and_tracer(&relief, 100_000);
         assert!(shadowed > 15_000, "{shadowed}");
         assert!(tracer_only <= 5, "{tracer_only}");
@@ -423,16 +429,8 @@ mod tests {
     /// steps finds each of them under the ground, as the tracer does.
     #[test]
     fn the_marcher_finds_rays_a_few_centimetres_below_a_ridge() {
-        let dem = Map::load(
-            std::path::Path::new("../shared/data/moon/ldem_4.tif"),
-            &Encoding {
-                scale: 1000.0,
-                ..Encoding::default()
-            },
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
         let radius = 1_737_400.0;
-        let relief = Relief::new(dem, radius, false).unwrap();
+        let relief = lunar_relief(radius);
         let tracer = Terrain::new(&relief);
         // (longitude, latitude) [deg] of the point and the unit direction to the Sun (B).
         let rays: [(f64, f64, f64, f64, f64); 7] = [

@@ -420,7 +420,7 @@ mod tests {
 
     /// Sun rays from lit points beside the limb of Artemis I row 861 (159 deg of phase,
     /// `config/nrho_textured_budget.toml`), rising at 0.1 to 2 deg over the LOLA DEM, that
-    /// pass a few centimetres below a ridge one to thirteen kilometres on. Between two of the
+    /// pass a few centimetres below a ridge a few kilometres on. Between two of the
     /// marcher's points the ray lies up to `s^2 / (8 r)` below its chord (26 cm over a
     /// quarter texel of the 4 px/deg DEM); the marcher tested it only where the chord came
     /// lowest, and lit those points: 137 of 416,457 near that limb (2.2e-4 of their light,
@@ -485,12 +485,10 @@ mod tests {
             ),
         ];
         for (lon, lat, x, y, z) in rays {
-            let up = crate::geometry::unit_from_lon_lat(lon.to_radians(), lat.to_radians());
+            let (lon_rad, lat_rad) = (lon.to_radians(), lat.to_radians());
+            let up = crate::geometry::unit_from_lon_lat(lon_rad, lat_rad);
             let toward = DVec3::new(x, y, z);
-            let h0 = relief
-                .heights_m
-                .sample(lon.to_radians(), lat.to_radians())
-                .unwrap();
+            let h0 = relief.heights_m.sample(lon_rad, lat_rad).unwrap();
             let start = up * (radius + h0 + crate::body::SHADOW_RAY_LIFT * radius);
             let below = (1..25_000).any(|k| {
                 let q = start + toward * (2.0 * k as f64);

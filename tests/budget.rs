@@ -212,6 +212,29 @@ fn a_crescent_thinner_than_a_pixel_is_seen_by_the_planner() {
     assert!(frame.pl.iter().filter(|&&v| v > 0.0).count() > 20);
 }
 
+/// Artemis I row 850 of `config/nrho_textured_budget.toml` (5,582 km, 161.8 deg): the LOLA
+/// Moon's lune, thinner than the probe's grid, is found only where the probe reads the limb
+/// between its rays, and that light lies where the camera grazes the ground, below any of the
+/// DEM's steep slopes. Counted lit and not under them, the frame's shadow share was 0, the
+/// planner cast no shadows, and the frame measured 51 times its reference's light
+/// (`docs/performance.md`, "The flagged rows measured with the marcher fixed").
+#[test]
+fn a_lune_thinner_than_the_probe_over_a_dem_keeps_its_shadows() {
+    use optistim::render::settings::SelfShadowing;
+    use std::path::Path;
+    let cfg = optistim::config::load(Path::new("config/nrho_textured_budget.toml")).unwrap();
+    let poses =
+        optistim::trajectory::read(Path::new("../shared/trajectories/artemis1_flyby.csv")).unwrap();
+    let plan = cfg.planner().unwrap().plan(&cfg.scene, &poses[850].1);
+    let f = plan.features;
+    assert!((f.phase_deg - 161.8).abs() < 0.1, "{f:?}");
+    // Lit only along the limb and the terminator, as the probe finds a sub-pixel lune.
+    assert!(f.lit_px > 0.0 && f.lit_px < f.edge_px, "{f:?}");
+    assert!(f.shadow_share > 0.5, "{f:?}");
+    assert_eq!(plan.self_shadowing, SelfShadowing::RayMarching, "{plan:?}");
+    assert!(!plan.meets_budget, "{plan:?}");
+}
+
 /// The reference of a lune of light thinner than a pixel (the test above's crescent: 171 deg
 /// from 8 radii, a Lambert sphere, 256 x 256, 110 lit pixels) holds its light: a sliver of
 /// the terminator's side that slips between a cell's 13 rays is found at the cell's corners

@@ -1427,13 +1427,19 @@ fn refined_cell(
             } else if c.contains(&0) && !c.contains(&2) {
                 // A lune of light along the limb thinner than the grid (a crescent at high
                 // phase): the limb itself, found between the sub-cell's top corners or its
-                // left ones, is lit there. Counted as an edge sub-cell a quarter lit.
+                // left ones, is lit there. Counted as an edge sub-cell a quarter lit, and, over
+                // a DEM, under its steep slopes: the camera grazes the limb there, lower than
+                // any slope (counted lit alone, Artemis I row 850's lune, 161.8 deg, was
+                // planned without shadows and measured 51 times its reference's light).
                 let (u, v) = (u0 + i as f64 * su, v0 + j as f64 * sv);
                 let hit = c[0] != 0;
                 if (c[0] != c[1] && lit_at_limb(tracer, pose, (u, v), (u + su, v), hit))
                     || (c[0] != c[2] && lit_at_limb(tracer, pose, (u, v), (u, v + sv), hit))
                 {
                     out[0] += 0.25 * su * sv;
+                    if steep > 0.0 {
+                        out[1] += 0.25 * su * sv;
+                    }
                     out[2] += (su * sv).sqrt();
                 }
             }

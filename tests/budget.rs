@@ -216,7 +216,7 @@ fn a_crescent_thinner_than_a_pixel_is_seen_by_the_planner() {
 /// Moon's lune, thinner than the probe's grid, is found only where the probe reads the limb
 /// between its rays, and that light lies where the camera grazes the ground, below any of the
 /// DEM's steep slopes. Counted lit and not under them, the frame's shadow share was 0, the
-/// planner cast no shadows, and the frame measured 51 times its reference's light
+/// planner cast no shadows, and the frame measured 52 times its reference's light
 /// (`docs/performance.md`, "The flagged rows measured with the marcher fixed").
 #[test]
 fn a_lune_thinner_than_the_probe_over_a_dem_keeps_its_shadows() {

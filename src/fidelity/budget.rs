@@ -1430,7 +1430,7 @@ fn refined_cell(
                 // left ones, is lit there. Counted as an edge sub-cell a quarter lit, and, over
                 // a DEM, under its steep slopes: the camera grazes the limb there, lower than
                 // any slope (counted lit alone, Artemis I row 850's lune, 161.8 deg, was
-                // planned without shadows and measured 51 times its reference's light).
+                // planned without shadows and measured 52 times its reference's light).
                 let (u, v) = (u0 + i as f64 * su, v0 + j as f64 * sv);
                 let hit = c[0] != 0;
                 if (c[0] != c[1] && lit_at_limb(tracer, pose, (u, v), (u + su, v), hit))

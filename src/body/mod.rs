@@ -9,6 +9,7 @@
 //! its horizons ([`horizon`]) and the albedo map are looked up along the surface point's
 //! direction from the centre.
 
+pub mod clearance;
 pub mod ellipsoid;
 pub mod horizon;
 pub mod maps;
@@ -242,6 +243,9 @@ pub struct Relief {
     /// beyond which a rising ray from the ground clears the highest point
     /// ([`pyramid::window_max`]); `None` for a regional DEM.
     reach_slope: Option<std::sync::Arc<Vec<f32>>>,
+    /// A global DEM's bounds on the elevation above which a ray from the ground clears all
+    /// the terrain, the slopes near it and the heights beyond ([`clearance::Clearance`]).
+    clearance: Option<std::sync::Arc<clearance::Clearance>>,
     /// Ray-marching step [m]: a quarter texel in latitude.
     step_m: f64,
     /// Block maxima of a global DEM (`None` for a regional one), over which a marched ray
@@ -384,6 +388,8 @@ impl Relief {
         let reach_slope = pyramid
             .is_some()
             .then(|| std::sync::Arc::new(pyramid::window_max(&cell_slope, &heights_m, clear_arc)));
+        let clearance = clearance::Clearance::new(&heights_m, radius_m, &cell_slope, clear_arc)
+            .map(std::sync::Arc::new);
         Ok(Relief {
             slope_east: slope(east)?,
             slope_north: slope(north)?,
@@ -396,6 +402,7 @@ impl Relief {
             cell_slope: std::sync::Arc::new(cell_slope),
             max_cell_slope,
             reach_slope,
+            clearance,
             step_m: 0.25 * radius_m * dlat,
             pyramid,
             horizon_sin: None,
@@ -485,9 +492,10 @@ impl Relief {
         self.march(up, toward, true)
     }
 
-    /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray rising
-    /// more steeply than every slope within its reach is clear at once,
-    /// [`Relief::slope_within_reach`]; the pyramid's leaps) or without: the points are those
+    /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray the bounds
+    /// clear is clear at once, [`Relief::rises_clear`]; one clear of every height beyond the
+    /// near arc is marched only that far, [`clearance::Clearance::far_clears`]; the
+    /// pyramid's leaps) or without: the points are those
     /// of one sequence (the start, the near field's [`NEAR_FIELD_STEPS`], then step `n`
     /// at `n` steps from the start). A leap skips the points of the sequence within the reach
     /// over which the ray clears the highest ground, tests the last of them, and checks no
@@ -503,7 +511,7 @@ impl Relief {
             return false;
         }
         let (lon, lat) = crate::geometry::lon_lat(up);
-        if leaps && rises_above(rise, self.slope_within_reach(lon, lat)) {
+        if leaps && self.rises_clear(rise, lon, lat) {
             return false;
         }
         let h0 = self.heights_m.sample(lon, lat).unwrap_or(0.0);
@@ -569,12 +577,29 @@ impl Relief {
             at: pyramid::RayPoint::on(&self.heights_m, up, lon, lat),
         };
         let mut j = 0;
+        // Clear of every height beyond the near arc ([`clearance::Clearance`]): the ray is
+        // marched only until its point is that far round (a tested point there, every point
+        // before it tested or leapt over). On the six NRHO frames of
+        // [`Relief::rises_clear`] this stopped 5.5 M rays early; with both, the points tested
+        // fell from 705 M to 600 M, 15 %; on the perilune (row 174) from 273 M to 210 M.
+        let beyond_m = self
+            .clearance
+            .as_ref()
+            .filter(|c| leaps && c.far_clears(rise, prev.at.x, prev.at.y))
+            .and_then(|c| {
+                let tan_near = c.near_rad().tan();
+                let denominator = horizontal - tan_near * rise;
+                (denominator > 0.0).then(|| tan_near * prev.r / denominator)
+            });
         // From the ground, rising more steeply than the ground within reach: clear so far.
         let mut clear_to = match pyramid.filter(|_| rise > 0.0) {
             Some(p) => p.rise_clear(&self.heights_m, &prev.at, rise),
             None => 0.0,
         };
         loop {
+            if beyond_m.is_some_and(|t| prev.t >= t) {
+                return false;
+            }
             // The points the ray clears over: the last of them is tested, with no dip check.
             if let Some(last) = last_within(clear_to).filter(|&last| last >= j) {
                 let (hit, p) = test(point(last));
@@ -605,11 +630,32 @@ impl Relief {
     /// slowly than it does ([`pyramid::MaxPyramid::rise_clear`]'s argument, out to the arc
     /// where nothing is higher). The steepest cell anywhere for a regional DEM.
     pub(crate) fn slope_within_reach(&self, lon: f64, lat: f64) -> f64 {
+        self.slope_within_reach_at(self.heights_m.texel_coords(lon, lat))
+    }
+
+    /// Whether a ray rising by `rise` (the sine of its elevation) from the ground at `(lon,
+    /// lat)` is clear of all the terrain by the DEM's bounds alone: it rises more steeply
+    /// than every slope within reach ([`Relief::slope_within_reach`]), or than the slopes
+    /// near it and the elevation of all the heights beyond ([`clearance::Clearance`]). Over
+    /// six NRHO frames (rows 0, 105, 174, 290, 435 and 580 of `nrho_2orbits.csv` at 1024 x
+    /// 1024, 2 quadrangles a pixel, the relief read at `relief_refine` 2 with marched
+    /// shadows) the first cleared 19.9 M of the 72.7 M rays asked, the second 15.2 M of the
+    /// 52.5 M left, with the same images bit for bit.
+    pub(crate) fn rises_clear(&self, rise: f64, lon: f64, lat: f64) -> bool {
+        let at = self.heights_m.texel_coords(lon, lat);
+        rises_above(rise, self.slope_within_reach_at(at))
+            || self
+                .clearance
+                .as_ref()
+                .is_some_and(|c| c.clears(rise, at.0, at.1))
+    }
+
+    /// [`Relief::slope_within_reach`] at texel coordinates `(x, y)`.
+    fn slope_within_reach_at(&self, (x, y): (f64, f64)) -> f64 {
         let Some(reach) = self.reach_slope.as_deref() else {
             return self.max_cell_slope;
         };
         let (w, h) = (self.heights_m.width as i64, self.heights_m.height as i64);
-        let (x, y) = self.heights_m.texel_coords(lon, lat);
         let r = crate::geometry::floor_i64(y).clamp(0, h - 1);
         let c = crate::geometry::floor_i64(x).rem_euclid(w);
         reach[(r * w + c) as usize] as f64

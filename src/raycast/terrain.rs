@@ -246,10 +246,10 @@ impl Terrain {
         }
         let (lon, lat) = crate::geometry::lon_lat(up);
         let (rate, rises) = if rise > 0.0 {
-            let reach = self.relief.slope_within_reach(lon, lat);
-            if crate::body::rises_above(rise, reach) {
+            if self.relief.rises_clear(rise, lon, lat) {
                 return false;
             }
+            let reach = self.relief.slope_within_reach(lon, lat);
             (reach, Some(rise))
         } else {
             (1.0 + self.max_slope, None)

@@ -257,50 +257,22 @@ impl Clearance {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::body::pyramid::unit_hash;
+    use crate::body::pyramid::{crater_rims, test_relief_over, unit_hash};
     use crate::body::rises_above;
     use crate::geometry::{east_north, lon_lat, unit_from_lon_lat};
 
-    /// A global DEM on a 720 x 360 grid over a sphere of `radius_m`, its height [m] at texel
-    /// `(column, row)` (and index `i`) by `height`.
-    fn relief_over(
-        height: impl Fn(f64, f64, usize) -> f64,
-        displaces: bool,
-        radius_m: f64,
-    ) -> crate::body::Relief {
-        let (w, h) = (720usize, 360usize);
-        let v: Vec<f64> = (0..w * h)
-            .map(|i| height((i % w) as f64, (i / w) as f64, i))
-            .collect();
-        let dem = Map::from_values(
-            std::path::Path::new("rough"),
-            w,
-            h,
-            v,
-            &crate::body::maps::Encoding::default(),
-        )
-        .unwrap();
-        crate::body::Relief::new(dem, radius_m, displaces).unwrap()
-    }
-
     /// Rolling plains, crater rims 3 km high and single-texel spikes of 2 km on a 720 x 360
-    /// grid over a body of 200 km, displaced and not: every ray the bounds clear, the marcher without any shortcut
-    /// finds clear, including rays only a thousandth steeper than the bounds allow (where a
-    /// loose bound would let the ground through); the marcher with its shortcuts (these, and
-    /// a ray clear beyond the near arc marched only over it) answers as without; and the
-    /// bounds clear many rays the slope within reach alone does not.
+    /// grid over a body of 200 km, displaced and not: every ray the bounds clear, the marcher
+    /// without any shortcut finds clear, including rays only a thousandth steeper than the
+    /// bounds allow (where a loose bound would let the ground through); the marcher with its
+    /// shortcuts (these, and a ray clear beyond the near arc marched only over it) answers as
+    /// without; and the bounds clear many rays the slope within reach alone does not.
     #[test]
     fn a_ray_the_bounds_clear_the_marcher_finds_clear() {
         let hash = unit_hash;
         let height = |c: f64, r: f64, i: usize| {
             let plains = 400.0 * (c * 0.013).sin() * (r * 0.021).cos() + 30.0 * hash(i);
-            let rims: f64 = (0..6)
-                .map(|k| {
-                    let (cc, rc) = (57.0 + 115.0 * k as f64, 90.0 + 35.0 * k as f64);
-                    let d = ((c - cc).powi(2) + (r - rc).powi(2)).sqrt();
-                    3000.0 * (-(d - 6.0).powi(2) / 2.0).exp()
-                })
-                .sum();
+            let rims = crater_rims((c, r), (57.0, 90.0), (115.0, 35.0), 6.0, 2.0);
             let spike = if r % 20.0 == 0.0 && c % 20.0 == 0.0 {
                 2000.0
             } else {
@@ -312,7 +284,7 @@ mod tests {
         for displaces in [false, true] {
             // A body of 200 km, whose curvature hides a spike 10 texels off but little less,
             // so that the far field bounds the rays towards the spikes.
-            let relief = relief_over(height, displaces, radius_m);
+            let relief = test_relief_over(height, displaces, radius_m);
             let clearance = relief.clearance.as_deref().expect("a global DEM");
             let map = &relief.heights_m;
             let (mut cleared, mut only_here, mut at_the_bound, mut cut_short) = (0, 0, 0, 0);

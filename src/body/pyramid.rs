@@ -416,6 +416,28 @@ pub(crate) fn unit_hash(i: usize) -> f64 {
     x as f64 / (1u64 << 24) as f64
 }
 
+/// Six crater rims 3 km high at texel `(c, r)` [m]: rim `k` centred at `first + k spacing`
+/// (columns, rows), of radius `rim` texels, its profile `exp(-(d - rim)^2 / width)`.
+#[cfg(test)]
+pub(crate) fn crater_rims(
+    (c, r): (f64, f64),
+    first: (f64, f64),
+    spacing: (f64, f64),
+    rim: f64,
+    width: f64,
+) -> f64 {
+    (0..6)
+        .map(|k| {
+            let (cc, rc) = (
+                first.0 + spacing.0 * k as f64,
+                first.1 + spacing.1 * k as f64,
+            );
+            let d = ((c - cc).powi(2) + (r - rc).powi(2)).sqrt();
+            3000.0 * (-(d - rim).powi(2) / width).exp()
+        })
+        .sum()
+}
+
 /// A global DEM on a 720 x 360 grid (half a degree a texel) over the Moon's radius, its
 /// height [m] at texel `(column, row)` (and index `i`) by `height`: the marchers' tests'
 /// terrains.
@@ -423,6 +445,16 @@ pub(crate) fn unit_hash(i: usize) -> f64 {
 pub(crate) fn test_relief(
     height: impl Fn(f64, f64, usize) -> f64,
     displaces: bool,
+) -> super::Relief {
+    test_relief_over(height, displaces, 1_737_400.0)
+}
+
+/// [`test_relief`] over a sphere of `radius_m`.
+#[cfg(test)]
+pub(crate) fn test_relief_over(
+    height: impl Fn(f64, f64, usize) -> f64,
+    displaces: bool,
+    radius_m: f64,
 ) -> super::Relief {
     let (w, h) = (720usize, 360usize);
     let v: Vec<f64> = (0..w * h)
@@ -436,7 +468,7 @@ pub(crate) fn test_relief(
         &super::maps::Encoding::default(),
     )
     .unwrap();
-    super::Relief::new(dem, 1_737_400.0, displaces).unwrap()
+    super::Relief::new(dem, radius_m, displaces).unwrap()
 }
 
 #[cfg(test)]
@@ -459,13 +491,7 @@ mod tests {
             .map(|i| {
                 let (c, r) = ((i % w) as f64, (i / w) as f64);
                 let plains = 400.0 * (c * 0.013).sin() * (r * 0.021).cos();
-                let rims: f64 = (0..6)
-                    .map(|k| {
-                        let (cc, rc) = (97.0 + 231.0 * k as f64, 120.0 + 83.0 * k as f64);
-                        let d = ((c - cc).powi(2) + (r - rc).powi(2)).sqrt();
-                        3000.0 * (-(d - 12.0).powi(2) / 4.0).exp()
-                    })
-                    .sum();
+                let rims = crater_rims((c, r), (97.0, 120.0), (231.0, 83.0), 12.0, 4.0);
                 let hills = if r < 40.0 { 1500.0 * hash(i) } else { 0.0 };
                 // Single-texel spikes of 2 km every 40 texels from row 400: obstacles thin
                 // enough for a wrong leap to jump over.

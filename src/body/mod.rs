@@ -494,13 +494,12 @@ impl Relief {
 
     /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray the bounds
     /// clear is clear at once, [`Relief::rises_clear`]; one clear of every height beyond the
-    /// near arc is marched only that far, [`clearance::Clearance::far_clears`]; the
-    /// pyramid's leaps) or without: the points are those
-    /// of one sequence (the start, the near field's [`NEAR_FIELD_STEPS`], then step `n`
-    /// at `n` steps from the start). A leap skips the points of the sequence within the reach
-    /// over which the ray clears the highest ground, tests the last of them, and checks no
-    /// dip between the two; every other pair of consecutive points is checked alike either
-    /// way, so the answer is the same.
+    /// near arc is marched only that far, [`clearance::Clearance::far_clears`]; the pyramid's
+    /// leaps) or without: the points are those of one sequence (the start, the near field's
+    /// [`NEAR_FIELD_STEPS`], then step `n` at `n` steps from the start). A leap skips the
+    /// points of the sequence within the reach over which the ray clears the highest ground,
+    /// tests the last of them, and checks no dip between the two; every other pair of
+    /// consecutive points is checked alike either way, so the answer is the same.
     fn march(&self, up: DVec3, toward: DVec3, leaps: bool) -> bool {
         let rise = toward.dot(up);
         if rise <= 0.0 && !self.displaces {

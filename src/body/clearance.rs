@@ -79,7 +79,9 @@ impl Clearance {
         let v = |r: usize, c: usize| map.values[r.min(h - 1) * w + c % w] as f64;
         // Per level of target blocks (`1 << k` texels a side): the highest height a point
         // whose texel coordinates' floor lies in a block can read (its bilinear taps reach
-        // one texel beyond the block), and the block's centre as a unit vector.
+        // one texel beyond the block), and the block's centre as a unit vector. Not the
+        // pyramid's maxima ([`super::pyramid::MaxPyramid`]): those are dilated over the
+        // neighbouring blocks for a moving point's reach, a bound looser than this needs.
         let (lon_first, lat_first) = map.texel_centre(0, 0);
         let centre = |x: f64, y: f64| {
             crate::geometry::unit_from_lon_lat(lon_first + x * dlon, lat_first - y * dlat)

@@ -233,6 +233,11 @@ fn a_lune_thinner_than_the_probe_over_a_dem_keeps_its_shadows() {
     assert!(f.shadow_share > 0.5, "{f:?}");
     assert_eq!(plan.self_shadowing, SelfShadowing::RayMarching, "{plan:?}");
     assert!(!plan.meets_budget, "{plan:?}");
+    // Over an undisplaced DEM such a lune is read over each pixel, the limb's pixels in
+    // strips along it: taken per quadrangle (`Area`), its neighbours 854-858 measured
+    // 50-200 times the budget's total (`docs/performance.md`, "The crescents read over
+    // each pixel").
+    assert_eq!(plan.map_filter, MapFilter::Relief, "{plan:?}");
 }
 
 /// The reference of a lune of light thinner than a pixel (the test above's crescent: 171 deg
@@ -1038,7 +1043,8 @@ fn the_model_names_the_frames_that_set_its_margins() {
 }
 
 /// Artemis I row 852 (`config/nrho_textured_budget.toml`, 5,645 km, 161 deg: a lune of lit
-/// ridge tops along the limb, 0.1-0.3 px wide) as planned, against lattices warped at the
+/// ridge tops along the limb, 0.1-0.3 px wide) as the planner took it until stop 73 (`Area`,
+/// 16 per pixel), against lattices warped at the
 /// limb ([`limb_warped_at`]) of 256 and 512 a pixel side over every pixel within one of light
 /// (a first pass of 4 x 4 over the frame, then 16 x 16 within three pixels of light, find
 /// them). The reference's own estimate does not let `verify-budget` judge this frame, and
@@ -1062,15 +1068,17 @@ fn artemis_852_is_dark_against_lattices_warped_at_the_limb() {
     ))
     .unwrap();
     let pose = poses[852].1;
-    let planner = cfg.planner().expect("a budgeted file");
-    let mut renderer = Renderer::new(0).unwrap();
-    let (plan, frame) = planner
-        .render(&cfg.scene, &pose, |s| renderer.render(&cfg.scene, &pose, s))
+    // The setting the planner took here until it read such lunes over each pixel
+    // (`Planner::plan`): 16 quadrangles per pixel, the map per quadrangle, marched shadows.
+    let area = optistim::render::Settings {
+        map_filter: MapFilter::Area,
+        self_shadowing: optistim::render::settings::SelfShadowing::RayMarching,
+        ..optistim::fidelity::budget::Planner::rung(&cfg.settings, 16.0)
+    };
+    let frame = Renderer::new(0)
+        .unwrap()
+        .render(&cfg.scene, &pose, &area)
         .unwrap();
-    assert_eq!(
-        (plan.points_per_pixel, plan.map_filter),
-        (16.0, MapFilter::Area)
-    );
     let tracer = optistim::raycast::Tracer::new(&cfg.scene, &pose);
     let (w, h) = (frame.width, frame.height);
     let brute = |n: usize, px: &[usize]| brute_force_at(&tracer, w, px, (n, n));

@@ -159,6 +159,12 @@ impl Features {
         }
     }
 
+    /// Whether the lit surface is on average thinner than a pixel: fewer lit pixels than
+    /// pixels along the limb and the terminator (a lune at high phase).
+    pub fn thinner_than_a_pixel(&self) -> bool {
+        self.lit_px > 0.0 && self.lit_px < self.edge_px
+    }
+
     /// The features the error model reads for a frame whose pixels, where each reads the
     /// relief ([`Features::relief_per_pixel`]), may be read again up to `relief_refine` times
     /// as finely; elsewhere the setting changes nothing and is read as 1.
@@ -1655,7 +1661,9 @@ impl Planner {
     /// 0.1-0.3 px wide that spans a hundred texels from the limb to the terminator: on
     /// Artemis I row 852 (161 deg) it measured median 1.1e-2, p99 0.14, total 1.0e-3 at 16
     /// quadrangles per pixel, where the quadrangles' own reads measure 1.2e-4, 1.8e-3 and
-    /// 7.4e-5 (`docs/performance.md`, "A crescent thinner than a pixel").
+    /// 7.4e-5 (`docs/performance.md`, "A crescent thinner than a pixel"). Over an
+    /// undisplaced DEM [`Planner::plan`] weighs the relief's reads against these
+    /// quadrangles, and takes the reads on the Artemis I lunes.
     ///
     /// With an undisplaced DEM, where a pixel's footprint spans at least
     /// [`RELIEF_FOOTPRINT_TEXELS`] of the finer texels, the relief's shading and shadows are
@@ -1666,7 +1674,7 @@ impl Planner {
     /// each pixel"). Nearer, [`Planner::plan`] takes those reads where they are predicted
     /// to meet the budget at a lower cost than the quadrangles.
     pub fn map_filter(&self, f: &Features) -> MapFilter {
-        if f.lit_px > 0.0 && f.lit_px < f.edge_px {
+        if f.thinner_than_a_pixel() {
             MapFilter::Area
         } else if self
             .finest_over_map_texels
@@ -1720,10 +1728,19 @@ impl Planner {
     fn ladder(&self, features: &Features, map_filter: MapFilter) -> Vec<Candidate> {
         let modelled = features.modelled(map_filter);
         let refines: Vec<u32> = if map_filter == MapFilter::Relief {
-            let floor = self
-                .base
-                .relief_refine
-                .min(RELIEF_REFINES[RELIEF_REFINES.len() - 1]);
+            let finest = RELIEF_REFINES[RELIEF_REFINES.len() - 1];
+            // A lune thinner than a pixel is read at the finest refinement at once: its
+            // reads' own estimates, which refine a frame again ([`Planner::refined_again`]),
+            // miss light that both of a pixel's reads miss. On Artemis I rows 852-858
+            // (160-161 deg) the reads at `k` 2 measured medians 7.6e-3 to 5.0e-2 and p99s
+            // 0.85 to 1.6 where their own estimates said the p99 met the budget; at 8,
+            // 3.7e-4 to 3.6e-3 and 3.8e-2 to 0.75 (`docs/performance.md`, "The crescents
+            // read over each pixel").
+            let floor = if features.thinner_than_a_pixel() {
+                finest
+            } else {
+                self.base.relief_refine.min(finest)
+            };
             RELIEF_REFINES
                 .iter()
                 .copied()
@@ -1779,7 +1796,15 @@ impl Planner {
         // planner now takes, in 15.6 s (1.41e-3); at `k` 1 they met it in 2.4 s, which the
         // model, fitted at `k` 1 on frames at 86-130 deg alone, does not predict
         // (`docs/performance.md`, "Between the two ladders by cost").
-        if map_filter == MapFilter::Pixel
+        //
+        // A lune thinner than a pixel (`MapFilter::Area`) is a candidate for the reads too:
+        // they read the pixels the limb cuts in strips along it, where the quadrangles
+        // spread a lune over the pixels it crosses. Against references read warped at the
+        // limb (model 10), Artemis I rows 854, 856 and 858 (160-161 deg) measured totals
+        // 1.9e-2, 1.5e-2, 1.0e-2 and p99s 1.0, 1.0, 0.64 planned `Area` at 16 per pixel;
+        // the reads at 2 per pixel, `k` 8, 8.4e-5, 1.8e-4, 1.2e-4 and 0.14, 6.9e-2, 3.8e-2
+        // (`docs/performance.md`, "The crescents read over each pixel").
+        if matches!(map_filter, MapFilter::Pixel | MapFilter::Area)
             && outside.is_none()
             && self.relief_fitted
             && self.finest_over_map_texels.is_some()

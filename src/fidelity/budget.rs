@@ -1731,11 +1731,11 @@ impl Planner {
             let finest = RELIEF_REFINES[RELIEF_REFINES.len() - 1];
             // A lune thinner than a pixel is read at the finest refinement at once: its
             // reads' own estimates, which refine a frame again ([`Planner::refined_again`]),
-            // miss light that both of a pixel's reads miss. On Artemis I rows 852-858
-            // (160-161 deg) the reads at `k` 2 measured medians 7.6e-3 to 5.0e-2 and p99s
-            // 0.85 to 1.6 where their own estimates said the p99 met the budget; at 8,
-            // 3.7e-4 to 3.6e-3 and 3.8e-2 to 0.75 (`docs/performance.md`, "The crescents
-            // read over each pixel").
+            // miss light that both of a pixel's reads miss. On Artemis I rows 852, 853, 854
+            // and 856 (160-161 deg) the reads at `k` 2 measured medians 7.6e-3 to 5.0e-2 and
+            // p99s 0.85 to 1.6 where their own estimates said the p99 met the budget; on
+            // 852-858 at 8, 3.7e-4 to 3.6e-3 and 3.8e-2 to 0.75 (`docs/performance.md`, "The
+            // crescents read over each pixel").
             let floor = if features.thinner_than_a_pixel() {
                 finest
             } else {

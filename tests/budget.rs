@@ -1044,16 +1044,15 @@ fn the_model_names_the_frames_that_set_its_margins() {
 
 /// Artemis I row 852 (`config/nrho_textured_budget.toml`, 5,645 km, 161 deg: a lune of lit
 /// ridge tops along the limb, 0.1-0.3 px wide) as the planner took it until stop 73 (`Area`,
-/// 16 per pixel), against lattices warped at the
-/// limb ([`limb_warped_at`]) of 256 and 512 a pixel side over every pixel within one of light
-/// (a first pass of 4 x 4 over the frame, then 16 x 16 within three pixels of light, find
-/// them). The reference's own estimate does not let `verify-budget` judge this frame, and
+/// 16 per pixel), against lattices warped at the limb ([`limb_warped_at`]) of 256 and 512 a
+/// pixel side over every pixel within one of light (a first pass of 4 x 4 over the frame,
+/// then 16 x 16 within three pixels of light, find them). The reference's own estimate does not let `verify-budget` judge this frame, and
 /// plain lattices do not converge on it (8.3396, 8.3112 and 8.3181e-22 sr m^2 at 256, 512
 /// and 1024 midpoints a side: the light per unit of the image grows as the inverse square
 /// root of the distance to the limb, and its variance without bound). Warped, they do:
 /// - their totals agree to 1.4e-4 (8.3255 and 8.3267e-22 over 972 pixels), their 214 lit
 ///   pixels' median to 2.0e-4 (p99 6.9e-2: a few faint pixels by ridge tops' edges);
-/// - the plan (16 per pixel, `Area`, marched shadows) is 1.04 % and 1.05 % dark against
+/// - that setting (16 per pixel, `Area`, marched shadows) is 1.04 % and 1.05 % dark against
 ///   them: over the budget by seventy times what the lattices leave open.
 ///
 /// A diagnostic (4 minutes on 2 cores): `cargo test --release --test budget -- --ignored

@@ -298,7 +298,9 @@ impl Map {
 
     /// Where `(lon, lat)` falls on this map's grid: the texels and weights of [`Map::sample`],
     /// reusable on every map of the same grid ([`Map::same_grid`]) at the cost of one lookup.
-    #[inline]
+    /// Always inlined: a marched shadow ray samples the DEM at every step, and the call was
+    /// 8.6 % of a budgeted NRHO frame (row 232); inlined, that frame is about 5 % faster.
+    #[inline(always)]
     pub fn taps(&self, lon: f64, lat: f64) -> Option<Taps> {
         let mut x = (lon - self.lon0) / self.dlon - 0.5;
         let w = self.width as f64;

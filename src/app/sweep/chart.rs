@@ -53,6 +53,30 @@ fn front(pts: &[(f64, f64, String)]) -> Vec<(f64, f64)> {
     f
 }
 
+/// A frame time's tick label [ms]: only the ticks at 1, 2 and 5 times a power of ten are
+/// named (a panel spanning less than a decade gets a tick every 10 ms or every 1 ms, and
+/// named every one, their labels ran into each other); the others keep their grid line.
+fn time_label(ms: f64) -> String {
+    if !(ms.is_finite() && ms > 0.0) {
+        return String::new();
+    }
+    let decade = 10f64.powf(ms.log10().floor());
+    let leading = ms / decade;
+    if ![1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .any(|m| (leading - m).abs() < 1e-6 * m)
+    {
+        return String::new();
+    }
+    if ms >= 10.0 {
+        format!("{ms:.0}")
+    } else if ms >= 1.0 {
+        format!("{ms:.1}")
+    } else {
+        format!("{ms:.2}")
+    }
+}
+
 fn panel_on<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     panel: &Panel,
@@ -89,13 +113,7 @@ fn panel_on<DB: DrawingBackend>(
         .x_desc("frame time [ms]")
         .y_desc(fig.0)
         .y_label_formatter(&|y| format!("{y:.0e}"))
-        .x_label_formatter(&|x| {
-            if *x >= 10.0 {
-                format!("{x:.0}")
-            } else {
-                format!("{x:.2}")
-            }
-        })
+        .x_label_formatter(&|x| time_label(*x))
         .label_style(("sans-serif", 12))
         .draw()
         .map_err(|e| e.to_string())?;
@@ -172,4 +190,24 @@ pub fn draw(panels: &[Panel], png: &Path, svg: &Path) -> Result<(), String> {
     let size = (520 * panels.len().max(1) as u32, 1260);
     draw_on(BitMapBackend::new(png, size).into_drawing_area(), panels)?;
     draw_on(SVGBackend::new(svg, size).into_drawing_area(), panels)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::time_label;
+
+    #[test]
+    fn only_one_two_and_five_times_a_power_of_ten_are_named() {
+        let named: Vec<String> = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 100.0, 200.0, 500.0]
+            .iter()
+            .map(|&x| time_label(x))
+            .collect();
+        assert_eq!(named, ["10", "20", "", "", "50", "", "100", "200", "500"]);
+        assert_eq!(time_label(2.0), "2.0");
+        assert_eq!(time_label(3.0), "");
+        assert_eq!(time_label(0.5), "0.50");
+        assert_eq!(time_label(1e4), "10000");
+        assert_eq!(time_label(f64::NAN), "");
+        assert_eq!(time_label(0.0), "");
+    }
 }

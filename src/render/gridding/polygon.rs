@@ -196,8 +196,8 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
 }
 
 /// Splits `p` along `coord[axis] = at` into the parts below (`lo`) and above (`hi`), in
-/// one pass, writing both in place (a polygon is 136 bytes: returned by value, the copies
-/// were a fifth of the gridding's time).
+/// one pass, writing both in place (a polygon is 136 bytes: returned by value and copied
+/// on, they made `memmove` 19 % of the analytic frame at 1 quadrangle per pixel).
 #[inline(always)]
 fn split(p: &Poly, axis: usize, at: f64, lo: &mut Poly, hi: &mut Poly) {
     lo.1 = 0;

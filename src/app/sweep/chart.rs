@@ -61,6 +61,7 @@ fn time_label(ms: f64) -> String {
         return String::new();
     }
     let decade = 10f64.powf(ms.log10().floor());
+    // In [1, 10), or 10 less a rounding for a tick a hair below a power of ten.
     let leading = ms / decade;
     if ![1.0, 2.0, 5.0, 10.0]
         .iter()

@@ -256,8 +256,9 @@ fn splat_peel(
         density.fragment(a, || (mx, my)).max(0.0)
     };
     // Peel off one pixel column at a time, then one pixel row at a time from each column.
-    let mut columns = Peeler::new(quad);
-    let mut rows = Peeler::new(EMPTY);
+    let mut columns = Peeler::empty();
+    columns.restart(&quad);
+    let mut rows = Peeler::empty();
     for i in i0..=i1 {
         let col = columns.peel(0, i + 1, i == i1);
         if col.1 < 3 {
@@ -286,14 +287,15 @@ struct Peeler {
 
 impl Peeler {
     #[inline(always)]
-    fn new(p: Poly) -> Peeler {
+    fn empty() -> Peeler {
         Peeler {
-            rest: [p, EMPTY],
+            rest: [EMPTY; 2],
             at: 0,
             part: EMPTY,
         }
     }
 
+    /// Starts cutting `p`.
     #[inline(always)]
     fn restart(&mut self, p: &Poly) {
         self.rest[0] = *p;

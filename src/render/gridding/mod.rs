@@ -94,14 +94,30 @@ pub struct Accum<'a> {
     pub scale: f64,
 }
 
+/// `value` (non-negative) in fixed point of `scale` units per unit: `+ 0.5` then truncation
+/// rounds half up (libm's `round` is not inlined and showed in profiles).
+#[inline(always)]
+pub fn to_fixed(value: f64, scale: f64) -> i64 {
+    (value * scale + 0.5) as i64
+}
+
 impl Accum<'_> {
     #[inline(always)]
     pub fn add(&mut self, x: i64, y: i64, value: f64) {
         let (dx, dy) = (x - self.x0, y - self.y0);
         if dx >= 0 && dy >= 0 && dx < self.w && dy < self.h {
-            // Values are non-negative: `+ 0.5` then truncation rounds half up (libm's `round` is
-            // not inlined and showed in profiles).
-            self.data[(dy * self.w + dx) as usize] += (value * self.scale + 0.5) as i64;
+            self.data[(dy * self.w + dx) as usize] += to_fixed(value, self.scale);
         }
+    }
+
+    /// Row `y` of the window (`None` outside it), for kernels that fill runs of a row: its
+    /// column `x` is `x - x0`.
+    #[inline(always)]
+    pub fn row(&mut self, y: i64) -> Option<&mut [i64]> {
+        let dy = y - self.y0;
+        (dy >= 0 && dy < self.h).then(|| {
+            let w = self.w as usize;
+            &mut self.data[dy as usize * w..][..w]
+        })
     }
 }

@@ -11,7 +11,7 @@
 //! could not be projected, the quadrangle folds over itself (at the limb), it is degenerate,
 //! or it spans more than `MAX_SPAN_PX` pixels. The caller then falls back to a point kernel.
 
-use super::{Accum, floor_i64};
+use super::{Accum, floor_i64, to_fixed};
 
 const MAX_SPAN_PX: i64 = 64;
 /// Footprints whose bounding box covers at most this many pixels are cut by peeling (see
@@ -161,38 +161,71 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
     // conditioned far from the image origin.
     let (ox, oy) = (i0 as f64, j0 as f64);
     let local = c.map(|p| [p[0] - ox, p[1] - oy]);
+    let density = Linear::new(value, total, slope, [ox, oy]);
     let cells = nx * ny;
     // Taken out of `acc` for the loop below (which adds to `acc`), put back at the end.
     let mut m = std::mem::take(acc.cells);
     m.clear();
-    m.resize(5 * cells, 0.0);
-    let (moments, cover) = m.split_at_mut(3 * cells);
+    m.resize(3 * cells, 0.0);
+    let (inner, band) = m.split_at_mut(cells);
     for e in 0..4 {
-        edge_moments(local[e], local[(e + 1) % 4], nx, ny, moments, cover);
+        edge_sums(local[e], local[(e + 1) % 4], nx, ny, &density, inner, band);
     }
-    // The edge sums are the moments of the region to the right of the boundary: minus the
-    // signed moments of the footprint.
-    let density = Density::new(value, total, slope, [ox, oy]);
+    // The edge sums are the density's integral over the region right of the boundary: minus
+    // the footprint's. Along each row, the bands of the edges to the left are summed in.
+    let (band_value, band_height) = band.split_at(cells);
+    let (x0, scale) = (acc.x0, acc.scale);
     for j in 0..ny {
-        let (mut band_h, mut band_v) = (0.0, 0.0);
+        let Some(row) = acc.row(j0 + j as i64) else {
+            continue; // another band's row
+        };
+        let (mut b, mut h) = (0.0, 0.0);
         for i in 0..nx {
             let cell = j * nx + i;
-            band_h += cover[cell];
-            band_v += cover[cells + cell];
-            let a = -(moments[3 * cell] + band_h);
-            let frag = density.fragment(a, || {
-                (
-                    -(moments[3 * cell + 1] + band_h * (i as f64 + 0.5)),
-                    -(moments[3 * cell + 2] + band_v),
-                )
-            });
-            if frag > 0.0 {
-                acc.add(i0 + i as i64, j0 + j as i64, frag);
+            b += band_value[cell];
+            h += band_height[cell];
+            let frag = -(inner[cell] + b + density.gx * i as f64 * h);
+            let x = (i0 + i as i64 - x0) as usize; // wraps to huge left of the window
+            if frag > 0.0 && x < row.len() {
+                row[x] += to_fixed(frag, scale);
             }
         }
     }
     *acc.cells = m;
     true
+}
+
+/// The linear density of [`Density`] in the form the edge sums use (local coordinates, the
+/// footprint's orientation folded in): a region of signed area `a` and first moments
+/// `(mx, my)` holds `k0 a + gx mx + gy my`.
+struct Linear {
+    k0: f64,
+    gx: f64,
+    gy: f64,
+}
+
+impl Linear {
+    #[inline(always)]
+    fn new(value: f64, total: f64, slope: Option<&Slope>, origin: [f64; 2]) -> Linear {
+        let k = value / total;
+        match slope {
+            None => Linear {
+                k0: k,
+                gx: 0.0,
+                gy: 0.0,
+            },
+            Some(s) => {
+                let sign = total.signum();
+                let (gx, gy) = (sign * s.grad[0], sign * s.grad[1]);
+                let (cx, cy) = (s.centroid[0] - origin[0], s.centroid[1] - origin[1]);
+                Linear {
+                    k0: k - gx * cx - gy * cy,
+                    gx,
+                    gy,
+                }
+            }
+        }
+    }
 }
 
 /// Splits `p` along `coord[axis] = at` into the parts below (`lo`) and above (`hi`), in
@@ -318,18 +351,20 @@ impl Peeler {
 }
 
 /// Adds one directed edge `p -> q` (local pixel coordinates, inside `nx x ny` pixels) to the
-/// moment sums: for each piece of the edge inside one pixel, the area and first moments of the
-/// region between the piece and the pixel's right side (`moments`, 3 per pixel), and the
-/// height and `int v dv` of its band for the pixels further right along the row (`cover`,
-/// deltas summed along the row by the caller; heights first, then `int v dv`).
+/// edge sums: for each piece of the edge inside one pixel, the density's integral over the
+/// region between the piece and the pixel's right side (`inner`), and for the pixels further
+/// right along the row, the integral over the piece's band but for the part linear in the
+/// pixel's column (`band`: the band's value at column 0, then its height; deltas summed along
+/// the row by the caller).
 #[inline(always)]
-fn edge_moments(
+fn edge_sums(
     p: [f64; 2],
     q: [f64; 2],
     nx: usize,
     ny: usize,
-    moments: &mut [f64],
-    cover: &mut [f64],
+    density: &Linear,
+    inner: &mut [f64],
+    band: &mut [f64],
 ) {
     let d = [q[0] - p[0], q[1] - p[1]];
     if d[1] == 0.0 {
@@ -348,6 +383,7 @@ fn edge_moments(
     };
     let (mut tx, dtx) = first(p[0], d[0]);
     let (mut ty, dty) = first(p[1], d[1]);
+    let Linear { k0, gx, gy } = *density;
     let mut a = p;
     let mut t0 = 0.0;
     while t0 < 1.0 {
@@ -372,15 +408,20 @@ fn edge_moments(
             let x_right = (i + 1) as f64;
             let cell = j * nx + i;
             let sy = a[1] + b[1];
-            moments[3 * cell] += dy * (x_right - 0.5 * (a[0] + b[0]));
-            moments[3 * cell + 1] +=
-                dy * 0.5 * (x_right * x_right - (a[0] * a[0] + a[0] * b[0] + b[0] * b[0]) / 3.0);
-            moments[3 * cell + 2] += dy
+            // The region's area and first moments (Green's theorem along the piece).
+            let area = dy * (x_right - 0.5 * (a[0] + b[0]));
+            let mx = dy
+                * 0.5
+                * (x_right * x_right - (a[0] * a[0] + a[0] * b[0] + b[0] * b[0]) * (1.0 / 3.0));
+            let my = dy
                 * (0.5 * x_right * sy
-                    - (a[0] * (2.0 * a[1] + b[1]) + b[0] * (a[1] + 2.0 * b[1])) / 6.0);
+                    - (a[0] * (2.0 * a[1] + b[1]) + b[0] * (a[1] + 2.0 * b[1])) * (1.0 / 6.0));
+            inner[cell] += k0 * area + gx * mx + gy * my;
             if i + 1 < nx {
-                cover[cell + 1] += dy;
-                cover[cells + cell + 1] += 0.5 * dy * sy;
+                // The band over one pixel at column `i'` holds `dy (k0 + gx (i' + 1/2)) +
+                // gy dy sy / 2`: all but `gx i' dy` goes here.
+                band[cell + 1] += dy * (k0 + 0.5 * gx) + 0.5 * gy * dy * sy;
+                band[cells + cell + 1] += dy;
             }
         }
         a = b;

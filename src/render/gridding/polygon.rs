@@ -163,28 +163,35 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
     let local = c.map(|p| [p[0] - ox, p[1] - oy]);
     let density = Linear::new(value, total, slope, [ox, oy]);
     let cells = nx * ny;
-    // Taken out of `acc` for the loop below (which adds to `acc`), put back at the end.
+    // Taken out of `acc` for the loop below (which adds to `acc`), put back at the end. It is
+    // all zero between footprints: the row pass below zeroes every sum it reads.
     let mut m = std::mem::take(acc.cells);
-    m.clear();
-    m.resize(3 * cells, 0.0);
-    let (inner, band) = m.split_at_mut(cells);
+    if m.len() < 3 * cells {
+        m.resize(3 * cells, 0.0);
+    }
+    let (inner, band) = m[..3 * cells].split_at_mut(cells);
     for e in 0..4 {
         edge_sums(local[e], local[(e + 1) % 4], nx, ny, &density, inner, band);
     }
     // The edge sums are the density's integral over the region right of the boundary: minus
     // the footprint's. Along each row, the bands of the edges to the left are summed in.
-    let (band_value, band_height) = band.split_at(cells);
+    let (band_value, band_height) = band.split_at_mut(cells);
     let (x0, scale) = (acc.x0, acc.scale);
     for j in 0..ny {
+        let this_row = j * nx..(j + 1) * nx;
         let Some(row) = acc.row(j0 + j as i64) else {
-            continue; // another band's row
+            // Another band's row.
+            inner[this_row.clone()].fill(0.0);
+            band_value[this_row.clone()].fill(0.0);
+            band_height[this_row].fill(0.0);
+            continue;
         };
         let (mut b, mut h) = (0.0, 0.0);
         for i in 0..nx {
             let cell = j * nx + i;
-            b += band_value[cell];
-            h += band_height[cell];
-            let frag = -(inner[cell] + b + density.gx * i as f64 * h);
+            b += std::mem::take(&mut band_value[cell]);
+            h += std::mem::take(&mut band_height[cell]);
+            let frag = -(std::mem::take(&mut inner[cell]) + b + density.gx * i as f64 * h);
             let x = (i0 + i as i64 - x0) as usize; // wraps to huge left of the window
             if frag > 0.0 && x < row.len() {
                 row[x] += to_fixed(frag, scale);
@@ -371,27 +378,32 @@ fn edge_sums(
         return; // a horizontal edge bounds no band
     }
     let cells = nx * ny;
-    // Parameters of the next pixel-line crossings along the edge, and their spacing.
-    let first = |x: f64, dx: f64| -> (f64, f64) {
+    // Walked pixel by pixel (a DDA): along each axis the pixel the edge starts in, the
+    // parameter of its next pixel-line crossing, their spacing, and the step in pixels.
+    let walk = |x: f64, dx: f64| -> (i64, f64, f64, i64) {
         if dx > 0.0 {
-            ((floor_i64(x) as f64 + 1.0 - x) / dx, 1.0 / dx)
+            let c = floor_i64(x);
+            (c, (c as f64 + 1.0 - x) / dx, 1.0 / dx, 1)
         } else if dx < 0.0 {
-            ((-floor_i64(-x) as f64 - 1.0 - x) / dx, -1.0 / dx)
+            let c = -floor_i64(-x) - 1;
+            (c, (c as f64 - x) / dx, -1.0 / dx, -1)
         } else {
-            (f64::INFINITY, f64::INFINITY)
+            (floor_i64(x), f64::INFINITY, f64::INFINITY, 0)
         }
     };
-    let (mut tx, dtx) = first(p[0], d[0]);
-    let (mut ty, dty) = first(p[1], d[1]);
+    let (mut ci, mut tx, dtx, si) = walk(p[0], d[0]);
+    let (mut cj, mut ty, dty, sj) = walk(p[1], d[1]);
+    let (last_i, last_j) = (nx as i64 - 1, ny as i64 - 1);
     let Linear { k0, gx, gy } = *density;
     let mut a = p;
     let mut t0 = 0.0;
     while t0 < 1.0 {
         let t1 = tx.min(ty).min(1.0);
-        if tx <= t1 {
+        let (cross_x, cross_y) = (tx <= t1, ty <= t1);
+        if cross_x {
             tx += dtx;
         }
-        if ty <= t1 {
+        if cross_y {
             ty += dty;
         }
         let b = if t1 >= 1.0 {
@@ -401,10 +413,10 @@ fn edge_sums(
         };
         let dy = b[1] - a[1];
         if dy != 0.0 {
-            // Local coordinates are >= 0 up to rounding: truncation is the floor (and a tiny
-            // negative value saturates to 0).
-            let i = (((a[0] + b[0]) * 0.5) as usize).min(nx - 1);
-            let j = (((a[1] + b[1]) * 0.5) as usize).min(ny - 1);
+            // The footprint lies in the `nx x ny` pixels: the walk leaves them only by a
+            // rounding at a pixel line, on a piece of no length.
+            let i = ci.clamp(0, last_i) as usize;
+            let j = cj.clamp(0, last_j) as usize;
             let x_right = (i + 1) as f64;
             let cell = j * nx + i;
             let sy = a[1] + b[1];
@@ -423,6 +435,12 @@ fn edge_sums(
                 band[cell + 1] += dy * (k0 + 0.5 * gx) + 0.5 * gy * dy * sy;
                 band[cells + cell + 1] += dy;
             }
+        }
+        if cross_x {
+            ci += si;
+        }
+        if cross_y {
+            cj += sj;
         }
         a = b;
         t0 = t1;
@@ -536,6 +554,38 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The edge sums' scratch is left all zero whatever the window cuts away (rows of another
+    /// band are skipped, not read), so the next footprint sums from clean cells.
+    #[test]
+    fn the_scratch_is_clean_after_a_footprint_cut_by_the_window() {
+        let big = [[0.3, 0.2], [3.7, 0.6], [3.4, 3.8], [0.5, 3.3]];
+        let other = [[0.6, 0.4], [3.2, 0.1], [3.9, 3.5], [0.2, 3.7]];
+        let slope = Slope {
+            centroid: [2.0, 2.0],
+            grad: [0.01, -0.02],
+        };
+        let run = |cells: &mut Vec<f64>, y0: i64, h: i64, c: &[[f64; 2]; 4]| {
+            let mut data = vec![0i64; 4 * h as usize];
+            let mut acc = Accum {
+                data: &mut data,
+                cells,
+                x0: 0,
+                y0,
+                w: 4,
+                h,
+                scale: (1u64 << 40) as f64,
+            };
+            assert!(splat_linear(c, 1.0, Some(&slope), &mut acc));
+            data
+        };
+        let mut used = Vec::new();
+        let cut = run(&mut used, 2, 2, &big); // rows 0 and 1 are another band's
+        assert!(cut.iter().any(|&x| x > 0));
+        assert!(!used.is_empty() && used.iter().all(|&x| x == 0.0));
+        let mut fresh = Vec::new();
+        assert_eq!(run(&mut used, 0, 4, &other), run(&mut fresh, 0, 4, &other));
     }
 
     #[test]

@@ -84,7 +84,8 @@ pub(crate) use crate::geometry::floor_i64;
 /// `grid_w x grid_h` pixels; contributions outside the grid are dropped.
 pub struct Accum<'a> {
     pub data: &'a mut [i64],
-    /// Scratch for kernels that need per-footprint work space (reused, never shrunk).
+    /// Scratch for kernels that need per-footprint work space (reused, never shrunk): all zero
+    /// when handed over, and left so by the kernel that uses it (the polygon's edge sums).
     pub cells: &'a mut Vec<f64>,
     pub x0: i64,
     pub y0: i64,

@@ -168,7 +168,7 @@ struct Buffers {
     mids: Vec<[f64; 2]>,
     verts: Vec<[f64; 2]>,
     /// Per gridding band: fixed-point rows and the kernel's scratch.
-    scratch: Vec<(Vec<i64>, Vec<f64>)>,
+    scratch: Vec<(Vec<i64>, gridding::Scratch)>,
     /// Gridding: (first row, last row) and (first column, last column) of each footprint, per
     /// pixel row a count then its band, and the footprints of each band (flat, from
     /// `band_start[b]`).
@@ -971,7 +971,7 @@ fn grid(
         .par_iter_mut()
         .zip(rows_out)
         .enumerate()
-        .for_each(|(b, ((fixed, cells), band_out))| {
+        .for_each(|(b, ((fixed, scratch), band_out))| {
             // This band's rows within the window.
             let (y0, y1) = (bounds[b].max(r0), bounds[b + 1].min(r1));
             if y0 >= y1 {
@@ -981,7 +981,7 @@ fn grid(
             fixed.resize((y1 - y0) * wc, 0);
             let mut acc = Accum {
                 data: fixed,
-                cells,
+                scratch,
                 x0: c0 as i64,
                 y0: y0 as i64,
                 w: wc as i64,

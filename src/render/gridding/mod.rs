@@ -84,15 +84,25 @@ pub(crate) use crate::geometry::floor_i64;
 /// `grid_w x grid_h` pixels; contributions outside the grid are dropped.
 pub struct Accum<'a> {
     pub data: &'a mut [i64],
-    /// Scratch for kernels that need per-footprint work space (reused, never shrunk): all zero
-    /// when handed over, and left so by the kernel that uses it (the polygon's edge sums).
-    pub cells: &'a mut Vec<f64>,
+    /// The kernels' work space, reused footprint after footprint.
+    pub scratch: &'a mut Scratch,
     pub x0: i64,
     pub y0: i64,
     pub w: i64,
     pub h: i64,
     /// Fixed-point units per unit of value.
     pub scale: f64,
+}
+
+/// A gridding band's work space for the kernels that need one, reused footprint after
+/// footprint (one per band, so one per thread at a time).
+#[derive(Default)]
+pub struct Scratch {
+    /// The polygon's edge sums (reused, never shrunk): all zero when handed over, and left so
+    /// by the edge sums.
+    cells: Vec<f64>,
+    /// The polygon's peeling buffers (boxed: taken out and put back for each footprint).
+    peel: Option<Box<polygon::Peelers>>,
 }
 
 /// `value` (non-negative) in fixed point of `scale` units per unit: `+ 0.5` then truncation

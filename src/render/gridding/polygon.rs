@@ -11,6 +11,8 @@
 //! could not be projected, the quadrangle folds over itself (at the limb), it is degenerate,
 //! or it spans more than `MAX_SPAN_PX` pixels. The caller then falls back to a point kernel.
 
+#[cfg(test)]
+use super::Scratch;
 use super::{Accum, floor_i64, to_fixed};
 
 const MAX_SPAN_PX: i64 = 64;
@@ -165,7 +167,7 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
     let cells = nx * ny;
     // Taken out of `acc` for the loop below (which adds to `acc`), put back at the end. It is
     // all zero between footprints: the row pass below zeroes every sum it reads.
-    let mut m = std::mem::take(acc.cells);
+    let mut m = std::mem::take(&mut acc.scratch.cells);
     if m.len() < 3 * cells {
         m.resize(3 * cells, 0.0);
     }
@@ -198,7 +200,7 @@ pub fn splat_linear(c: &[[f64; 2]; 4], value: f64, slope: Option<&Slope>, acc: &
             }
         }
     }
-    *acc.cells = m;
+    acc.scratch.cells = m;
     true
 }
 
@@ -289,16 +291,16 @@ fn splat_peel(
     density: Density,
     acc: &mut Accum,
 ) {
-    let mut quad: Poly = ([[0.0; 2]; MAX_VERTS], 4);
-    quad.0[..4].copy_from_slice(c);
     let frag = |p: &Poly| -> f64 {
         let (a, mx, my) = area_moments(verts(p));
         density.fragment(a, || (mx, my)).max(0.0)
     };
     // Peel off one pixel column at a time, then one pixel row at a time from each column.
-    let mut columns = Peeler::empty();
-    columns.restart(&quad);
-    let mut rows = Peeler::empty();
+    // The buffers are taken out of `acc` for the loop (which adds to `acc`), put back at the
+    // end.
+    let mut peelers = acc.scratch.peel.take().unwrap_or_default();
+    let Peelers { columns, rows } = &mut *peelers;
+    columns.restart_quad(c);
     for i in i0..=i1 {
         let col = columns.peel(0, i + 1, i == i1);
         if col.1 < 3 {
@@ -310,6 +312,24 @@ fn splat_peel(
             if cell.1 >= 3 {
                 acc.add(i, j, frag(cell));
             }
+        }
+    }
+    acc.scratch.peel = Some(peelers);
+}
+
+/// The peeling's buffers, one [`Peeler`] for the columns and one for the rows of each
+/// column: a band's, reused footprint after footprint (set up anew for each footprint, their
+/// 816 bytes were 1.7 % of the instructions of the 1-per-pixel frame).
+pub(super) struct Peelers {
+    columns: Peeler,
+    rows: Peeler,
+}
+
+impl Default for Peelers {
+    fn default() -> Peelers {
+        Peelers {
+            columns: Peeler::empty(),
+            rows: Peeler::empty(),
         }
     }
 }
@@ -339,6 +359,14 @@ impl Peeler {
     #[inline(always)]
     fn restart(&mut self, p: &Poly) {
         self.rest[0] = *p;
+        self.at = 0;
+    }
+
+    /// Starts cutting the quadrangle `c`.
+    #[inline(always)]
+    fn restart_quad(&mut self, c: &[[f64; 2]; 4]) {
+        self.rest[0].0[..4].copy_from_slice(c);
+        self.rest[0].1 = 4;
         self.at = 0;
     }
 
@@ -454,11 +482,11 @@ mod tests {
     /// Runs `splat` on a 4 x 4 pixel grid; the pixel values, `None` when it refused.
     fn on_4x4(splat: impl FnOnce(&mut Accum) -> bool) -> Option<Vec<f64>> {
         let mut data = vec![0i64; 16];
-        let mut cells = Vec::new();
+        let mut scratch = Scratch::default();
         let scale = (1u64 << 40) as f64;
         let mut acc = Accum {
             data: &mut data,
-            cells: &mut cells,
+            scratch: &mut scratch,
             x0: 0,
             y0: 0,
             w: 4,
@@ -566,11 +594,11 @@ mod tests {
             centroid: [2.0, 2.0],
             grad: [0.01, -0.02],
         };
-        let run = |cells: &mut Vec<f64>, y0: i64, h: i64, c: &[[f64; 2]; 4]| {
+        let run = |scratch: &mut Scratch, y0: i64, h: i64, c: &[[f64; 2]; 4]| {
             let mut data = vec![0i64; 4 * h as usize];
             let mut acc = Accum {
                 data: &mut data,
-                cells,
+                scratch,
                 x0: 0,
                 y0,
                 w: 4,
@@ -580,11 +608,11 @@ mod tests {
             assert!(splat_linear(c, 1.0, Some(&slope), &mut acc));
             data
         };
-        let mut used = Vec::new();
+        let mut used = Scratch::default();
         let cut = run(&mut used, 2, 2, &big); // rows 0 and 1 are another band's
         assert!(cut.iter().any(|&x| x > 0));
-        assert!(!used.is_empty() && used.iter().all(|&x| x == 0.0));
-        let mut fresh = Vec::new();
+        assert!(!used.cells.is_empty() && used.cells.iter().all(|&x| x == 0.0));
+        let mut fresh = Scratch::default();
         assert_eq!(run(&mut used, 0, 4, &other), run(&mut fresh, 0, 4, &other));
     }
 

@@ -108,7 +108,7 @@ pub struct Scratch {
 /// `value` (non-negative) in fixed point of `scale` units per unit: `+ 0.5` then truncation
 /// rounds half up (libm's `round` is not inlined and showed in profiles).
 #[inline(always)]
-pub fn to_fixed(value: f64, scale: f64) -> i64 {
+fn to_fixed(value: f64, scale: f64) -> i64 {
     (value * scale + 0.5) as i64
 }
 

@@ -11,8 +11,6 @@
 //! could not be projected, the quadrangle folds over itself (at the limb), it is degenerate,
 //! or it spans more than `MAX_SPAN_PX` pixels. The caller then falls back to a point kernel.
 
-#[cfg(test)]
-use super::Scratch;
 use super::{Accum, floor_i64, to_fixed};
 
 const MAX_SPAN_PX: i64 = 64;
@@ -477,6 +475,7 @@ fn edge_sums(
 
 #[cfg(test)]
 mod tests {
+    use super::super::Scratch;
     use super::*;
 
     /// Runs `splat` on a 4 x 4 pixel grid; the pixel values, `None` when it refused.

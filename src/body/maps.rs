@@ -236,6 +236,14 @@ impl Map {
         self.wraps
     }
 
+    /// The values at the north and south poles of a global map that reaches both (the means
+    /// of its first and last rows, towards which [`Map::sample`] blends beyond their
+    /// centres); `None` for a map that does not.
+    pub fn pole_values(&self) -> Option<(f64, f64)> {
+        (self.wraps && self.north_pole && self.south_pole)
+            .then_some((self.pole_north, self.pole_south))
+    }
+
     /// The latitude of row `r`'s centres [rad].
     pub fn row_lat(&self, r: usize) -> f64 {
         self.lat_top - (r as f64 + 0.5) * self.dlat

@@ -16,6 +16,7 @@ pub mod maps;
 pub mod mesh;
 pub mod pyramid;
 pub mod sphere;
+pub mod sun_envelope;
 
 use crate::brdf::Brdf;
 pub use ellipsoid::Ellipsoid;
@@ -262,6 +263,9 @@ pub struct Relief {
     displaces: bool,
     /// A normal map, which replaces the normals of the slopes where it has a value.
     pub normal_map: Option<NormalMap>,
+    /// The frame's bound on the ground towards the Sun ([`Relief::under_sun`]), which stops
+    /// a marched Sun ray once nothing farther can meet it.
+    sun: Option<std::sync::Arc<sun_envelope::SunEnvelope>>,
 }
 
 /// A normal map (paper Sec. 4.4): the three components on one grid, in the body frame B or in
@@ -411,7 +415,25 @@ impl Relief {
             dem_horizon: None,
             displaces,
             normal_map: None,
+            sun: None,
         })
+    }
+
+    /// The same relief for one frame, with the Sun at `sun_position_m` (body frame): its
+    /// marched Sun rays stop once the ground towards the Sun can no longer reach them
+    /// ([`sun_envelope::SunEnvelope`]; the answers are the same). For a global DEM only; the
+    /// relief as it is otherwise.
+    pub fn under_sun(&self, sun_position_m: DVec3) -> Relief {
+        let sun = self
+            .pyramid
+            .is_some()
+            .then(|| sun_envelope::SunEnvelope::new(self, sun_position_m))
+            .flatten()
+            .map(std::sync::Arc::new);
+        Relief {
+            sun,
+            ..self.clone()
+        }
     }
 
     /// The same relief with a horizon map: elevation angles [rad] of the local horizon above
@@ -494,8 +516,10 @@ impl Relief {
 
     /// [`Relief::occluded`], with the shortcuts of the DEM's bounds (`leaps`: a ray the bounds
     /// clear is clear at once, [`Relief::rises_clear`]; one clear of every height beyond the
-    /// near arc is marched only that far, [`clearance::Clearance::far_clears`]; the pyramid's
-    /// leaps) or without: the points are those of one sequence (the start, the near field's
+    /// near arc is marched only that far, [`clearance::Clearance::far_clears`], and a Sun ray
+    /// of a relief [`Relief::under_sun`] only until the ground towards the Sun can no longer
+    /// reach it, [`sun_envelope::SunEnvelope::clear_beyond_m`]; the pyramid's leaps) or
+    /// without: the points are those of one sequence (the start, the near field's
     /// [`NEAR_FIELD_STEPS`], then step `n` at `n` steps from the start). A leap skips the
     /// points of the sequence within the reach over which the ray clears the highest ground,
     /// tests the last of them, and checks no dip between the two; every other pair of
@@ -590,6 +614,14 @@ impl Relief {
                 let denominator = horizontal - tan_near * rise;
                 (denominator > 0.0).then(|| tan_near * prev.r / denominator)
             });
+        // Beyond where the ground towards the Sun can still reach the ray, it is clear.
+        let beyond_m = match (beyond_m, self.sun.as_deref().filter(|_| leaps)) {
+            (b, Some(envelope)) => match (b, envelope.clear_beyond_m(start, toward)) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            },
+            (b, None) => b,
+        };
         // From the ground, rising more steeply than the ground within reach: clear so far.
         let mut clear_to = match pyramid.filter(|_| rise > 0.0) {
             Some(p) => p.rise_clear(&self.heights_m, &prev.at, rise),

@@ -337,14 +337,17 @@ fn band_intrinsics(scene: &Scene) -> Vec<(usize, crate::camera::Intrinsics)> {
         .collect()
 }
 
-/// The view of `scene`'s body through `intr` from `pose` (the camera's, or a band's own).
+/// The view of `scene`'s body through `intr` from `pose` (the camera's, or a band's own);
+/// `under_sun`: the quadrangles' relief for this frame's Sun ([`under_sun`]), if any.
 fn view_through<'a>(
     intr: &'a crate::camera::Intrinsics,
     scene: &'a Scene,
     pose: &Pose,
     settings: &Settings,
+    under_sun: Option<&'a crate::body::Relief>,
 ) -> View<'a> {
     let (relief, shadows, _) = relief_roles(scene, settings);
+    let relief = under_sun.or(relief);
     View::new(
         intr,
         &scene.body.shape,
@@ -354,6 +357,15 @@ fn view_through<'a>(
         settings.supersampling,
         settings.fov,
     )
+}
+
+/// The quadrangles' relief for `pose`'s Sun where they march its shadows
+/// ([`crate::body::Relief::under_sun`]: the same answers, found sooner); `None` otherwise.
+fn under_sun(scene: &Scene, pose: &Pose, settings: &Settings) -> Option<crate::body::Relief> {
+    match relief_roles(scene, settings) {
+        (Some(r), SelfShadowing::RayMarching, _) => Some(r.under_sun(pose.sun_position_m)),
+        _ => None,
+    }
 }
 
 /// How the frame's relief is shared between the quadrangles and the footprint step: the
@@ -505,7 +517,8 @@ fn render_in_pool(
     let t_total = Instant::now();
     let intr = &scene.camera.intrinsics;
     let (width, height) = (intr.width_px as usize, intr.height_px as usize);
-    let view = view_through(intr, scene, pose, settings);
+    let framed = under_sun(scene, pose, settings);
+    let view = view_through(intr, scene, pose, settings, framed.as_ref());
     let band_intr = band_intrinsics(scene);
     let mut stats = FrameStats {
         phase_deg: view.csf.phase_rad.to_degrees(),
@@ -601,7 +614,7 @@ fn render_in_pool(
         };
         pl_image = to_image(&view, &mut t);
         for (b, intr_b) in &band_intr {
-            let view_b = view_through(intr_b, scene, pose, settings);
+            let view_b = view_through(intr_b, scene, pose, settings, framed.as_ref());
             let img = to_image(&view_b, &mut t);
             band_pl.push((*b, img));
         }

@@ -259,7 +259,7 @@ impl Clearance {
 
 #[cfg(test)]
 mod tests {
-    use crate::body::pyramid::{crater_rims, test_relief_over, unit_hash};
+    use crate::body::pyramid::{plains_rims_spikes, test_relief_over, unit_hash};
     use crate::body::rises_above;
     use crate::geometry::{east_north, lon_lat, unit_from_lon_lat};
 
@@ -272,16 +272,7 @@ mod tests {
     #[test]
     fn a_ray_the_bounds_clear_the_marcher_finds_clear() {
         let hash = unit_hash;
-        let height = |c: f64, r: f64, i: usize| {
-            let plains = 400.0 * (c * 0.013).sin() * (r * 0.021).cos() + 30.0 * hash(i);
-            let rims = crater_rims((c, r), (57.0, 90.0), (115.0, 35.0), 6.0, 2.0);
-            let spike = if r % 20.0 == 0.0 && c % 20.0 == 0.0 {
-                2000.0
-            } else {
-                0.0
-            };
-            plains + rims + spike
-        };
+        let height = plains_rims_spikes;
         let radius_m = 200_000.0;
         for displaces in [false, true] {
             // A body of 200 km, whose curvature hides a spike 10 texels off but little less,

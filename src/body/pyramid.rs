@@ -416,6 +416,21 @@ pub(crate) fn unit_hash(i: usize) -> f64 {
     x as f64 / (1u64 << 24) as f64
 }
 
+/// Rolling plains, six crater rims 3 km high and single-texel spikes of 2 km every 20
+/// texels, at texel `(c, r)` (index `i`) of a 720 x 360 grid [m]: the terrain of the
+/// marchers' shortcut tests ([`test_relief_over`]).
+#[cfg(test)]
+pub(crate) fn plains_rims_spikes(c: f64, r: f64, i: usize) -> f64 {
+    let plains = 400.0 * (c * 0.013).sin() * (r * 0.021).cos() + 30.0 * unit_hash(i);
+    let rims = crater_rims((c, r), (57.0, 90.0), (115.0, 35.0), 6.0, 2.0);
+    let spike = if r % 20.0 == 0.0 && c % 20.0 == 0.0 {
+        2000.0
+    } else {
+        0.0
+    };
+    plains + rims + spike
+}
+
 /// Six crater rims 3 km high at texel `(c, r)` [m]: rim `k` centred at `first + k spacing`
 /// (columns, rows), of radius `rim` texels, its profile `exp(-(d - rim)^2 / width)`.
 #[cfg(test)]

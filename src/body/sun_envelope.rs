@@ -268,7 +268,7 @@ impl SunEnvelope {
 
 #[cfg(test)]
 mod tests {
-    use crate::body::pyramid::{crater_rims, test_relief_over, unit_hash};
+    use crate::body::pyramid::{plains_rims_spikes, test_relief_over, unit_hash};
     use crate::geometry::unit_from_lon_lat;
 
     /// Rolling plains, crater rims 3 km high, single-texel spikes of 2 km and a polar cap of
@@ -281,19 +281,12 @@ mod tests {
     fn a_sun_ray_cut_by_the_envelope_gets_the_marchers_answer() {
         let hash = unit_hash;
         let height = |c: f64, r: f64, i: usize| {
-            let plains = 400.0 * (c * 0.013).sin() * (r * 0.021).cos() + 30.0 * hash(i);
-            let rims = crater_rims((c, r), (57.0, 90.0), (115.0, 35.0), 6.0, 2.0);
-            let spike = if r % 20.0 == 0.0 && c % 20.0 == 0.0 {
-                2000.0
-            } else {
-                0.0
-            };
             let cap = if r < 12.0 {
                 800.0 * (c * 0.3).sin().abs()
             } else {
                 0.0
             };
-            plains + rims + spike + cap
+            plains_rims_spikes(c, r, i) + cap
         };
         let radius_m = 200_000.0;
         for displaces in [false, true] {

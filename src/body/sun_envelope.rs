@@ -96,8 +96,9 @@ impl SunEnvelope {
                 return None;
             }
             let theta = cos_theta.acos();
-            let i0 = ((theta - rho).max(0.0) / dtheta) as u32;
+            // A cap reaching 90 deg only by its rim (by rounding) still fills the last cell.
             let i1 = (((theta + rho).min(FRAC_PI_2) / dtheta) as u32).min(n_theta as u32 - 1);
+            let i0 = (((theta - rho).max(0.0) / dtheta) as u32).min(i1);
             let (j0, columns) = if theta <= rho {
                 (0, n_phi as u32)
             } else {

@@ -265,7 +265,7 @@ pub struct Relief {
     pub normal_map: Option<NormalMap>,
     /// The frame's bound on the ground towards the Sun ([`Relief::under_sun`]), which stops
     /// a marched Sun ray once nothing farther can meet it.
-    sun: Option<std::sync::Arc<sun_envelope::SunEnvelope>>,
+    sun: Option<std::sync::Arc<sun_envelope::SunRays>>,
 }
 
 /// A normal map (paper Sec. 4.4): the three components on one grid, in the body frame B or in
@@ -419,21 +419,28 @@ impl Relief {
         })
     }
 
-    /// The same relief for one frame, with the Sun at `sun_position_m` (body frame): its
-    /// marched Sun rays stop once the ground towards the Sun can no longer reach them
+    /// The same relief for one frame, with the Sun at `sun_position_m` (body frame): once the
+    /// frame has marched enough Sun rays to pay for it ([`sun_envelope::SunRays::envelope`]),
+    /// they stop where the ground towards the Sun can no longer reach them
     /// ([`sun_envelope::SunEnvelope`]; the answers are the same). For a global DEM only; the
     /// relief as it is otherwise.
     pub fn under_sun(&self, sun_position_m: DVec3) -> Relief {
-        let sun = self
-            .pyramid
-            .is_some()
-            .then(|| sun_envelope::SunEnvelope::new(self, sun_position_m))
-            .flatten()
-            .map(std::sync::Arc::new);
+        let global = self.pyramid.is_some() && self.heights_m.pole_values().is_some();
+        let sun = global.then(|| std::sync::Arc::new(sun_envelope::SunRays::new(sun_position_m)));
         Relief {
             sun,
             ..self.clone()
         }
+    }
+
+    /// [`Relief::under_sun`] with the envelope built now, for a frame known to march many
+    /// Sun rays (the relief's reads: millions on an NRHO frame), which then all take it.
+    pub fn under_sun_now(&self, sun_position_m: DVec3) -> Relief {
+        let framed = self.under_sun(sun_position_m);
+        if let Some(sun) = framed.sun.as_deref() {
+            sun.built(&framed, true);
+        }
+        framed
     }
 
     /// The same relief with a horizon map: elevation angles [rad] of the local horizon above
@@ -615,12 +622,12 @@ impl Relief {
                 (denominator > 0.0).then(|| tan_near * prev.r / denominator)
             });
         // Beyond where the ground towards the Sun can still reach the ray, it is clear.
-        let beyond_m = match (beyond_m, self.sun.as_deref().filter(|_| leaps)) {
-            (b, Some(envelope)) => match (b, envelope.clear_beyond_m(start, toward)) {
-                (Some(a), Some(b)) => Some(a.min(b)),
-                (a, b) => a.or(b),
-            },
-            (b, None) => b,
+        let sun_beyond_m = (self.sun.as_deref().filter(|_| leaps))
+            .and_then(|sun| sun.envelope(self))
+            .and_then(|envelope| envelope.clear_beyond_m(start, toward));
+        let beyond_m = match (beyond_m, sun_beyond_m) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         };
         // From the ground, rising more steeply than the ground within reach: clear so far.
         let mut clear_to = match pyramid.filter(|_| rise > 0.0) {

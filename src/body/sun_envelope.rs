@@ -29,9 +29,72 @@ use super::Relief;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// The cells' side [texels of the DEM's latitude].
 const CELL_TEXELS: f64 = 0.5;
+
+/// Sun rays a frame marches before its envelope is built ([`SunRays::envelope`]): a build
+/// takes about 0.1 s of one core on the LOLA DEM (1440 x 720), which a frame that marches
+/// few rays does not win back (the NRHO perilune at 1/16 per pixel with `ray_marching`,
+/// 160 ms a frame, was 190 ms with the envelope built up front).
+const BUILD_AFTER: u64 = 250_000;
+
+/// A frame's Sun and, once the frame has marched [`BUILD_AFTER`] Sun rays, its
+/// [`SunEnvelope`] ([`super::Relief::under_sun`]).
+#[derive(Debug)]
+pub struct SunRays {
+    /// The Sun's position [m] (body frame).
+    position_m: DVec3,
+    marched: AtomicU64,
+    claimed: AtomicBool,
+    envelope: OnceLock<Option<SunEnvelope>>,
+}
+
+impl PartialEq for SunRays {
+    fn eq(&self, other: &SunRays) -> bool {
+        self.position_m == other.position_m
+    }
+}
+
+impl SunRays {
+    /// For the Sun at `position_m` (body frame), nothing built yet.
+    pub fn new(position_m: DVec3) -> SunRays {
+        SunRays {
+            position_m,
+            marched: AtomicU64::new(0),
+            claimed: AtomicBool::new(false),
+            envelope: OnceLock::new(),
+        }
+    }
+
+    /// The envelope of `relief` (the relief this belongs to), once built; the ray that
+    /// reaches [`BUILD_AFTER`] builds it, on its own thread, while the others go on marching
+    /// without it (a build on the render pool from within a render task could be stolen into
+    /// by a task of the same frame waiting on it). The answers are the same either way, so
+    /// the image does not depend on which rays had it.
+    #[inline]
+    pub fn envelope(&self, relief: &Relief) -> Option<&SunEnvelope> {
+        if let Some(built) = self.envelope.get() {
+            return built.as_ref();
+        }
+        if self.marched.fetch_add(1, Ordering::Relaxed) + 1 < BUILD_AFTER
+            || self.claimed.swap(true, Ordering::AcqRel)
+        {
+            return None;
+        }
+        self.built(relief, false)
+    }
+
+    /// The envelope of `relief`, built now if it is not yet, on the current rayon pool if
+    /// `parallel` (`None` where there is none: [`SunEnvelope::new`]).
+    pub fn built(&self, relief: &Relief, parallel: bool) -> Option<&SunEnvelope> {
+        self.envelope
+            .get_or_init(|| SunEnvelope::new(relief, self.position_m, parallel))
+            .as_ref()
+    }
+}
 
 /// Per frame: the running highest ground towards the Sun along each azimuth about its
 /// direction ([`SunEnvelope::new`]).
@@ -57,7 +120,9 @@ pub struct SunEnvelope {
 impl SunEnvelope {
     /// The envelope of `relief`'s ground towards the Sun at `sun_position_m` (body frame, from
     /// the centre); `None` for a DEM that does not cover the globe with both poles.
-    pub fn new(relief: &Relief, sun_position_m: DVec3) -> Option<SunEnvelope> {
+    /// `parallel`: on the current rayon pool (never from within a task that another task of
+    /// the pool may wait on: [`SunRays::envelope`]).
+    pub fn new(relief: &Relief, sun_position_m: DVec3, parallel: bool) -> Option<SunEnvelope> {
         let map = relief.heights_m.as_ref();
         let (pole_north, pole_south) = map.pole_values()?;
         let d_sun = sun_position_m.length();
@@ -137,74 +202,81 @@ impl SunEnvelope {
                 FRAC_PI_2 + lat_last + widen,
             ),
         ];
-        let ranges: Vec<(f32, u32, u32, u32, u32)> = (0..h - 1)
-            .into_par_iter()
-            .flat_map_iter(|r| {
-                let (_, lat_n) = map.texel_centre(0, r);
-                let (_, lat_s) = map.texel_centre(0, r + 1);
-                let lat_c = 0.5 * (lat_n + lat_s);
-                let (sin_lat, cos_lat) = lat_c.sin_cos();
-                // The farthest corners from a cell's centre: the same on every cell of a row.
-                let half = DVec3::new(cos_lat, 0.0, sin_lat);
-                let reach = [lat_n, lat_s]
-                    .iter()
-                    .map(|&lat| {
-                        let corner = crate::geometry::unit_from_lon_lat(0.5 * dlon, lat);
-                        corner.dot(half).clamp(-1.0, 1.0).acos()
-                    })
-                    .fold(0.0f64, f64::max);
-                let rho = reach + widen;
-                let sin_rho = rho.sin();
-                let (sin_lon, cos_lon) = (&sin_lon, &cos_lon);
-                let (north, south) = (&map.values[r * w..][..w], &map.values[(r + 1) * w..][..w]);
-                (0..w).filter_map(move |c| {
-                    let east = if c + 1 == w { 0 } else { c + 1 };
-                    let high = north[c].max(north[east]).max(south[c]).max(south[east]) as f64;
-                    let centre = DVec3::new(cos_lat * cos_lon[c], cos_lat * sin_lon[c], sin_lat);
-                    range(high, centre, rho, sin_rho)
+        let row_ranges = |r: usize| {
+            let (_, lat_n) = map.texel_centre(0, r);
+            let (_, lat_s) = map.texel_centre(0, r + 1);
+            let lat_c = 0.5 * (lat_n + lat_s);
+            let (sin_lat, cos_lat) = lat_c.sin_cos();
+            // The farthest corners from a cell's centre: the same on every cell of a row.
+            let half = DVec3::new(cos_lat, 0.0, sin_lat);
+            let reach = [lat_n, lat_s]
+                .iter()
+                .map(|&lat| {
+                    let corner = crate::geometry::unit_from_lon_lat(0.5 * dlon, lat);
+                    corner.dot(half).clamp(-1.0, 1.0).acos()
                 })
+                .fold(0.0f64, f64::max);
+            let rho = reach + widen;
+            let sin_rho = rho.sin();
+            let (sin_lon, cos_lon) = (&sin_lon, &cos_lon);
+            let (north, south) = (&map.values[r * w..][..w], &map.values[(r + 1) * w..][..w]);
+            (0..w).filter_map(move |c| {
+                let east = if c + 1 == w { 0 } else { c + 1 };
+                let high = north[c].max(north[east]).max(south[c]).max(south[east]) as f64;
+                let centre = DVec3::new(cos_lat * cos_lon[c], cos_lat * sin_lon[c], sin_lat);
+                range(high, centre, rho, sin_rho)
             })
-            .chain(
-                poles
-                    .into_par_iter()
-                    .filter_map(|(high, centre, rho)| range(high, centre, rho, rho.sin())),
-            )
-            .collect();
-        // Each task fills its own azimuths' columns from every cap that meets them.
-        let mut highest = vec![f64::NEG_INFINITY; n_phi * n_theta];
-        let tasks = rayon::current_num_threads().max(1);
-        let per_task = n_phi.div_ceil(tasks);
-        highest
-            .par_chunks_mut(per_task * n_theta)
-            .enumerate()
-            .for_each(|(task, columns)| {
-                let first = task * per_task;
-                let owned = first..first + columns.len() / n_theta;
-                for &(high, i0, i1, j0, count) in &ranges {
-                    let high = high as f64;
-                    let (i0, i1) = (i0 as usize, i1 as usize);
-                    let (j0, count) = (j0 as usize, count as usize);
-                    // The cap's columns, wrapped: at most two runs.
-                    let runs = [
-                        (j0, (j0 + count).min(n_phi)),
-                        (0, (j0 + count).saturating_sub(n_phi)),
-                    ];
-                    for (a, b) in runs {
-                        let (a, b) = (a.max(owned.start), b.min(owned.end));
-                        for j in a..b {
-                            let column = &mut columns[(j - first) * n_theta..][..n_theta];
-                            for cell in &mut column[i0..=i1] {
-                                *cell = cell.max(high);
-                            }
+        };
+        let pole_ranges = poles
+            .into_iter()
+            .filter_map(|(high, centre, rho)| range(high, centre, rho, rho.sin()));
+        let ranges: Vec<(f32, u32, u32, u32, u32)> = match parallel {
+            true => (0..h - 1)
+                .into_par_iter()
+                .flat_map_iter(row_ranges)
+                .collect::<Vec<_>>()
+                .into_iter()
+                .chain(pole_ranges)
+                .collect(),
+            false => (0..h - 1).flat_map(row_ranges).chain(pole_ranges).collect(),
+        };
+        // Each cap fills the cells it meets, its columns wrapped (at most two runs); on the
+        // pool, each task the columns from `first` that it holds.
+        let fill = |first: usize, columns: &mut [f64]| {
+            let owned = first..first + columns.len() / n_theta;
+            for &(high, i0, i1, j0, count) in &ranges {
+                let high = high as f64;
+                let (i0, i1) = (i0 as usize, i1 as usize);
+                let (j0, count) = (j0 as usize, count as usize);
+                let runs = [
+                    (j0, (j0 + count).min(n_phi)),
+                    (0, (j0 + count).saturating_sub(n_phi)),
+                ];
+                for (a, b) in runs {
+                    for j in a.max(owned.start)..b.min(owned.end) {
+                        for cell in &mut columns[(j - first) * n_theta..][i0..=i1] {
+                            *cell = cell.max(high);
                         }
                     }
                 }
-            });
+            }
+        };
+        let mut highest = vec![f64::NEG_INFINITY; n_phi * n_theta];
+        match parallel {
+            true => {
+                let per_task = n_phi.div_ceil(rayon::current_num_threads().max(1));
+                highest
+                    .par_chunks_mut(per_task * n_theta)
+                    .enumerate()
+                    .for_each(|(task, columns)| fill(task * per_task, columns));
+            }
+            false => fill(0, &mut highest),
+        }
         let mut running_m = highest;
         let sin_hi: Vec<f64> = (0..n_theta)
             .map(|i| ((i + 1) as f64 * dtheta).min(FRAC_PI_2).sin())
             .collect();
-        running_m.par_chunks_mut(n_theta).for_each(|column| {
+        running_m.chunks_mut(n_theta).for_each(|column| {
             let mut most = f64::NEG_INFINITY;
             for (cell, sin_hi) in column.iter_mut().zip(&sin_hi) {
                 // Every cell meets a cap (the caps cover the sphere); one that did not would
@@ -277,7 +349,8 @@ mod tests {
     /// near (the nearer, the wider the envelope's margins): every Sun ray the envelope cuts
     /// short gets the answer of the marcher without any shortcut, from points spread over the
     /// lit side and crowded near the terminator (the grazing rays the envelope is for); a
-    /// ray from any other direction is not cut; and many rays are cut.
+    /// ray from any other direction is not cut; many rays are cut; and the envelope built on
+    /// the pool is the one built on one thread.
     #[test]
     fn a_sun_ray_cut_by_the_envelope_gets_the_marchers_answer() {
         let hash = unit_hash;
@@ -300,7 +373,13 @@ mod tests {
                 );
                 let sun_m = sun_dir * sun_km * 1e3;
                 let framed = relief.under_sun(sun_m);
-                let envelope = framed.sun.as_deref().expect("a global DEM");
+                let sun = framed.sun.as_deref().expect("a global DEM");
+                let envelope = sun.built(&framed, n % 2 == 0).expect("a Sun far enough");
+                // Built on the pool or on one thread, the same envelope.
+                assert_eq!(
+                    super::SunEnvelope::new(&framed, sun_m, n % 2 == 1).as_ref(),
+                    Some(envelope)
+                );
                 for k in 0..6_000 {
                     let u = |j: usize| hash(k * 17 + j + 1000 * n);
                     // Half within 6 deg of the terminator, the others anywhere on the lit side.

@@ -2144,10 +2144,10 @@ pub fn apply_maps(
         });
     let ranges: Vec<(f64, f64)> = maps.iter().map(|m| m.scale_range()).collect();
     // Marched shadows stop where the ground towards this frame's Sun can no longer reach
-    // them (the same answers: `body::sun_envelope`).
+    // them (the same answers: `body::sun_envelope`); the reads march millions of them.
     let under_sun = shading
         .filter(|(_, s)| *s == SelfShadowing::RayMarching)
-        .map(|(r, _)| r.under_sun(pose.sun_position_m));
+        .map(|(r, _)| r.under_sun_now(pose.sun_position_m));
     let shading = match (&under_sun, shading) {
         (Some(r), Some((_, s))) => Some((r, s)),
         (_, shading) => shading,

@@ -21,9 +21,13 @@
 //! chord of the ceiling's sphere the true ray and its parallel twin part by at most
 //! `e = alpha 2 R_top`; the heights are raised by `e` and the caps widened by the angle it
 //! subtends. A ray farther from `s` than `alpha` (the camera's, when the DEM displaces the
-//! surface) is marched as before. The bound is on the map, as the pyramid's and
-//! [`super::clearance::Clearance`]'s are: a ray it stops is one the marcher would have found
-//! clear, so no answer changes (`tests` below against the marcher without any shortcut).
+//! surface) is marched as before. Building it takes about 0.1 s of one core on the LOLA
+//! DEM: a frame whose reads march millions of Sun rays builds it first, on the render pool
+//! ([`super::Relief::under_sun_now`]); one whose quadrangles march them builds it only once
+//! it has marched `BUILD_AFTER` of them ([`SunRays::envelope`]). The bound is on the map, as
+//! the pyramid's and [`super::clearance::Clearance`]'s are: a ray it stops is one the marcher
+//! would have found clear, so no answer changes (`tests` below against the marcher without
+//! any shortcut).
 
 use super::Relief;
 use glam::DVec3;
@@ -41,7 +45,7 @@ const CELL_TEXELS: f64 = 0.5;
 /// 160 ms a frame, was 190 ms with the envelope built up front).
 const BUILD_AFTER: u64 = 250_000;
 
-/// A frame's Sun and, once the frame has marched [`BUILD_AFTER`] Sun rays, its
+/// A frame's Sun and, once the frame has marched `BUILD_AFTER` Sun rays, its
 /// [`SunEnvelope`] ([`super::Relief::under_sun`]).
 #[derive(Debug)]
 pub struct SunRays {
@@ -70,7 +74,7 @@ impl SunRays {
     }
 
     /// The envelope of `relief` (the relief this belongs to), once built; the ray that
-    /// reaches [`BUILD_AFTER`] builds it, on its own thread, while the others go on marching
+    /// reaches `BUILD_AFTER` builds it, on its own thread, while the others go on marching
     /// without it (a build on the render pool from within a render task could be stolen into
     /// by a task of the same frame waiting on it). The answers are the same either way, so
     /// the image does not depend on which rays had it.

@@ -966,6 +966,10 @@ fn turn(d: f64) -> f64 {
     }
 }
 
+/// A read's place on the image's lattice of `(ns, nt)` reads a pixel: its column and row on
+/// that lattice, `ns` and `nt` ([`Band::shared_reads`]).
+type ReadPlace = (i64, i64, usize, usize);
+
 /// One band of [`BLOCK`] image rows being scaled: its pixels in every image, and what every
 /// block of it reads.
 struct Band<'a> {
@@ -1002,7 +1006,7 @@ struct Band<'a> {
     /// pixel (column, row, `ns`, `nt`), with where those lines of sight met the shape: a
     /// block's ring is its neighbours' own reads, read once (NRHO row 349: 40 % of its
     /// lattices' reads were rings).
-    shared_reads: HashMap<(i64, i64, usize, usize), ((f64, f64), ReliefRead)>,
+    shared_reads: HashMap<ReadPlace, ((f64, f64), ReliefRead)>,
     /// A block's pixels to be read again ([`Step::refine`]).
     refine: Vec<(usize, usize, f64, bool)>,
     /// The shadow answers of a pixel's reads at the level before the one being read.

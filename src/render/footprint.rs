@@ -1123,19 +1123,13 @@ impl Step<'_> {
         for jy in 0..lh {
             let (pr, b) = split(jy, nt);
             let t = pr as f64 / n;
-            // The read's row on the image's lattice of `nt` reads a pixel, and its image
-            // coordinate, from those alone: the same for every block that reads it.
-            let row = (band.y0 + y0) as i64 + pr as i64;
-            let gy = row * nt as i64 + b as i64;
-            let v_px = row as f64 + (b as f64 + 0.5) / nt as f64;
+            // The read's row on the image's lattice of `nt` reads a pixel.
+            let gy = ((band.y0 + y0) as i64 + pr as i64) * nt as i64 + b as i64;
             for jx in 0..lw {
                 let (pc, a) = split(jx, ns);
                 let s = pc as f64 / n;
-                let column = x0 as i64 + pc as i64;
-                let key = (column * ns as i64 + a as i64, gy, ns, nt);
-                let u_px = column as f64 + (a as f64 + 0.5) / ns as f64;
+                let gx = (x0 as i64 + pc as i64) * ns as i64 + a as i64;
                 let (du, dv) = band.offsets[b * ns + a];
-                let (u, v) = (s + du, t + dv);
                 // A read of the ring (outside the block) is taken as over a dark pixel.
                 let dark = match (usize::try_from(pc), usize::try_from(pr)) {
                     (Ok(c), Ok(r)) if x0 + c < x1 && y0 + r < y1 => band
@@ -1144,28 +1138,56 @@ impl Step<'_> {
                         .all(|img| img[(y0 + r) * w + x0 + c] == 0.0),
                     _ => true,
                 };
-                let skip = dark && lerp(mu0, s, t) + mu0_per_px <= 0.0;
-                // A read a neighbouring block made (the ring of one is its neighbour's
-                // own reads) is taken as it was: a read is a function of its place alone.
-                if let Some(&(sight, read)) =
-                    band.shared_reads.get(&key).filter(|_| self.share_reads)
-                {
-                    band.push_read(place.unwrapped(sight, u, v), (!skip).then_some(read));
-                    continue;
-                }
-                let sight = place.sight.and_then(|_| self.sight(u_px, v_px));
-                let at = match sight {
-                    Some(sight) => place.unwrapped(sight, u, v),
-                    None => place.bilinear(u, v),
-                };
-                let read = (!skip).then(|| self.relief_read(shading.0, shading.1, at, None));
-                if let (Some(sight), Some(read)) = (sight, read) {
-                    band.shared_reads.insert(key, (sight, read));
-                }
+                let wanted = !(dark && lerp(mu0, s, t) + mu0_per_px <= 0.0);
+                let (at, read) = self.shared_read(
+                    band,
+                    shading,
+                    place,
+                    (gx, gy, ns, nt),
+                    (s + du, t + dv),
+                    wanted,
+                );
                 band.push_read(at, read);
             }
         }
         band.place_edges(shading, (lw, lh));
+    }
+
+    /// The read of a block's lattice at `place` on the image's lattice of reads
+    /// ([`ReadPlace`]), at block coordinates `(s, t)` of `placement`, if `wanted`: where a
+    /// block of the band read it already (the ring of one is its neighbour's own reads, and a
+    /// lattice of reads again meets the blocks' where it reads as many a pixel), that read,
+    /// a function of its place alone; else read now and kept, where its line of sight
+    /// placed it. With where it lies on the map.
+    fn shared_read(
+        &self,
+        band: &mut Band,
+        shading: (&Relief, SelfShadowing),
+        placement: &Placement,
+        place: ReadPlace,
+        (s, t): (f64, f64),
+        wanted: bool,
+    ) -> ((f64, f64), Option<ReliefRead>) {
+        if self.share_reads
+            && let Some(&(sight, read)) = band.shared_reads.get(&place)
+        {
+            return (placement.unwrapped(sight, s, t), wanted.then_some(read));
+        }
+        let (gx, gy, ns, nt) = place;
+        // The image point from the place alone: the same bits for every block that reads it.
+        let image = |g: i64, m: usize| {
+            g.div_euclid(m as i64) as f64 + (g.rem_euclid(m as i64) as f64 + 0.5) / m as f64
+        };
+        let sight = (placement.sight).and_then(|_| self.sight(image(gx, ns), image(gy, nt)));
+        let at = match sight {
+            Some(sight) => placement.unwrapped(sight, s, t),
+            None => placement.bilinear(s, t),
+        };
+        let read = wanted.then(|| self.relief_read(shading.0, shading.1, at, None));
+        if let (Some(sight), Some(read)) = (sight, read) {
+            band.shared_reads.insert(place, (sight, read));
+        }
+        (at, read)
     }
 
     /// Where the line of sight through image point `(u, v)` [px] meets the shape: its
@@ -1528,13 +1550,21 @@ impl Step<'_> {
                     let t = ti + ((jy as f64 - 0.5) / mt as f64 - 0.5) / g.n;
                     for jx in 0..ls {
                         let s = si + ((jx as f64 - 0.5) / ms as f64 - 0.5) / g.n;
-                        let at = g.place.at(self, s, t);
                         // The first level marches every read (a shadow thinner than the
-                        // block's spacing is found there), the finer ones inherit from the
-                        // level before.
-                        let known = (f > 2)
-                            .then(|| inherited(&band.coarse, ms / 2 + 2, (jx, jy)))
-                            .flatten();
+                        // block's spacing is found there), a function of its place alone,
+                        // which a neighbour read again may have read (its ring); the finer
+                        // ones inherit from the level before, each pixel from its own.
+                        if f == 2 {
+                            let gx = i as i64 * ms as i64 + jx as i64 - 1;
+                            let gy = (band.y0 + r) as i64 * mt as i64 + jy as i64 - 1;
+                            let place = (gx, gy, ms, mt);
+                            let (at, read) =
+                                self.shared_read(band, shading, &g.place, place, (s, t), true);
+                            band.push_read(at, read);
+                            continue;
+                        }
+                        let at = g.place.at(self, s, t);
+                        let known = inherited(&band.coarse, ms / 2 + 2, (jx, jy));
                         let read = self.relief_read(shading.0, shading.1, at, known);
                         band.push_read(at, Some(read));
                     }

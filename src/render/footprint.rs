@@ -2545,9 +2545,9 @@ mod tests {
     #[test]
     fn a_block_takes_its_neighbours_reads_and_the_image_is_the_same() {
         // Hills and rims under a low Sun, seen whole from 12,000 km on 96 x 96 pixels (about
-        // a texel a pixel), read under the relief at `relief_refine` 2: blocks of one and two
-        // pixels, whose rings are their neighbours' reads. (With the reads of neighbouring
-        // columns of a pixel confused in the sharing, this fails.)
+        // a texel a pixel), read under the relief at `relief_refine` 2, with and without the
+        // sharing. (With the reads of neighbouring columns of a pixel confused in the
+        // sharing's key, this fails.)
         let relief =
             crate::body::pyramid::test_relief(crate::body::pyramid::plains_rims_spikes, false);
         let radius_m = 1_737_400.0;

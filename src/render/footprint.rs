@@ -330,7 +330,7 @@ struct Step<'a> {
     refine: usize,
     /// The largest spacing of a pixel's map reads [texels] ([`Reads::spacing_texels`]).
     spacing_texels: f64,
-    /// [`Reads::share_reads`].
+    /// [`Reads::share_reads`], where the lattices have rings (`relief_refine` above 1).
     share_reads: bool,
     /// `A_sun A_cam` [m^4] of Eq. 12, with which a pixel near the smooth terminator is
     /// taken from its reads alone ([`Step::absolute_scale`]).

@@ -2321,9 +2321,11 @@ pub fn apply_maps(
                 // The blocks of a band are read from left to right, each one's pixels before
                 // the next's: the reads left of the pixels beside this block are no one's
                 // ring now.
-                let first = (bx * BLOCK) as i64 - 1;
-                band.shared_reads
-                    .retain(|&(column, _, ns, _), _| column.div_euclid(ns as i64) >= first);
+                if step.share_reads {
+                    let first = (bx * BLOCK) as i64 - 1;
+                    band.shared_reads
+                        .retain(|&(column, _, ns, _), _| column.div_euclid(ns as i64) >= first);
+                }
                 let [c00, c01] = corners[bx];
                 let [c10, c11] = corners[bx + 1];
                 step.block(&mut band, bx * BLOCK, 0, BLOCK, [c00, c10, c01, c11]);

@@ -381,9 +381,6 @@ struct ReliefRead {
     /// The smooth shape's `mu0` and whether the camera sees it there.
     mu0_shape: f64,
     seen: bool,
-    /// The read's directions to the Sun and the camera (body frame, unit): its shadow rays.
-    s: DVec3,
-    c: DVec3,
 }
 
 impl ReliefRead {
@@ -482,8 +479,6 @@ impl Step<'_> {
                 camera_asked: true,
                 mu0_shape,
                 seen: mu_shape > 0.0,
-                s,
-                c,
             };
         }
         let smooth = self.brdf_ref.eval(&smooth_local) * mu0_shape;
@@ -524,8 +519,6 @@ impl Step<'_> {
             camera_asked: !(shadows == SelfShadowing::RayMarching && hidden[0]),
             mu0_shape,
             seen: true,
-            s,
-            c,
         }
     }
 
@@ -1777,7 +1770,7 @@ fn lit_shares(
     if n != ns * nt || at.len() != n || n < 2 {
         return;
     }
-    let toward = |r: &ReliefRead, ray: usize| if ray == 0 { r.s } else { r.c };
+    let toward = |r: &ReliefRead, ray: usize| if ray == 0 { r.local.s } else { r.local.c };
     // Where the edge crosses from read `j` to read `q` [share of the spacing from `j`].
     let crossing =
         |j: &ReliefRead, q: &ReliefRead, (at_j, at_q): ((f64, f64), (f64, f64)), ray: usize| {
@@ -1824,7 +1817,7 @@ fn lit_shares(
                     && x.iter().chain(&y).any(|d| !d.is_nan())
                 {
                     let up = crate::geometry::unit_from_lon_lat(at[j].0, at[j].1);
-                    r.hidden[1] = relief.occluded(up, r.c);
+                    r.hidden[1] = relief.occluded(up, r.local.c);
                     r.camera_asked = true;
                 }
             }
@@ -2389,8 +2382,6 @@ mod tests {
             camera_asked: true,
             mu0_shape: 1.0,
             seen: true,
-            s: up,
-            c: up,
         };
         let hidden_from_camera = Shadowed::of((&Some(read(1.0)), &0.0)).unwrap();
         assert!(!hidden_from_camera.sun && hidden_from_camera.camera == Some(true));
@@ -2664,8 +2655,6 @@ mod tests {
                     camera_asked: true,
                     mu0_shape: 1.0,
                     seen: true,
-                    s,
-                    c: up,
                 })
             })
             .collect();

@@ -368,7 +368,8 @@ const MU0_ABSOLUTE: f64 = 0.1;
 #[derive(Clone, Copy)]
 struct ReliefRead {
     smooth: f64,
-    /// The DEM's geometry at the read, unshadowed.
+    /// The DEM's geometry at the read, unshadowed; its `s` and `c` (body frame, unit) are
+    /// the read's shadow rays, towards the Sun and the camera.
     local: Local,
     /// `mu0 mu / mu_shape` where the DEM's facet faces the Sun and the camera, else 0; and
     /// whether the relief casts its shadow on the read (or hides it from the camera), which
